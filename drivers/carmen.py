@@ -1,0 +1,209 @@
+"""CARMEN log files: write scan frames as FLASER (or ROBOTLASER1) and ODOM lines, read them back.
+
+Line formats (one message per line, ``#`` starts a comment)::
+
+    PARAM name value ipc_hostname ipc_timestamp
+    ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp
+    FLASER n r_1 .. r_n x y theta odom_x odom_y odom_theta
+        ipc_timestamp ipc_hostname logger_timestamp
+    ROBOTLASER1 laser_type start_angle fov angular_resolution max_range accuracy remission_mode
+        n r_1 .. r_n n_rem rem_1 .. laser_x laser_y laser_theta robot_x robot_y robot_theta
+        tv rv forward_safety_dist side_safety_dist turn_axis
+        ipc_timestamp ipc_hostname logger_timestamp
+
+FLASER assumes a scan centred on the heading; its field of view and resolution come from the
+``laser_front_laser_fov`` and ``laser_front_laser_resolution`` parameters (default 180 and 1
+degree). A range at or beyond the laser's maximum range means "no return".
+"""
+
+from __future__ import annotations
+
+import gzip
+import math
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from vmp import __version__
+from vmp.errors import InputError
+from vmp.fileio import atomic_write
+from vmp.types import ScanFrame, wrap_angle
+
+__all__ = ["CarmenWriter", "read_carmen", "write_carmen"]
+
+HOST = "vmp"
+
+
+def _is_flaser_geometry(n: int, angle_min: float, inc: float) -> bool:
+    """True when the beams are centred on the heading, so FLASER describes them exactly."""
+    return abs(angle_min + inc * (n - 1) / 2.0) < 1e-9 and inc > 0
+
+
+class CarmenWriter:
+    """Write frames to a CARMEN log as they come; the file appears under its name on ``close``.
+
+    With ``atomic=False`` lines go straight to the named file and are flushed every second,
+    so a recording of a live run survives a crash up to its last flush.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, comment: str = "",
+                 atomic: bool = True) -> None:
+        self.path = Path(path)
+        self._ctx = atomic_write(self.path, "w", encoding="ascii") if atomic else None
+        self._f: IO[str] = (self._ctx.__enter__() if self._ctx is not None
+                            else open(self.path, "w", encoding="ascii"))
+        self._geometry: tuple[int, float, float, float] | None = None
+        self._last: tuple[float, np.ndarray] | None = None
+        self._f.write("# CARMEN Logfile\n# file format is one message per line\n")
+        self._f.write("# message_name [message contents] ipc_timestamp ipc_hostname "
+                      "logger_timestamp\n"
+                      "# message formats defined: PARAM ODOM FLASER ROBOTLASER1\n")
+        self._f.write(f"# written by vmp-slam {__version__}{': ' + comment if comment else ''}\n")
+        self.count = 0
+
+    def _params(self, frame: ScanFrame) -> None:
+        n, inc = frame.num_beams, frame.angle_increment
+        self._geometry = (n, frame.angle_min, inc, frame.max_range)
+        self._flaser = _is_flaser_geometry(n, frame.angle_min, inc)
+        fov = math.degrees(inc * (n - 1))
+        for name, value in (
+            ("robot_front_laser_max", f"{frame.max_range:g}"),
+            ("laser_front_laser_fov", f"{fov:.6g}"),
+            ("laser_front_laser_resolution", f"{math.degrees(inc):.6g}"),
+        ):
+            self._f.write(f"PARAM {name} {value} {HOST} {frame.stamp:.6f}\n")
+
+    def write(self, frame: ScanFrame) -> None:
+        if frame.odom is None:
+            raise ValueError("a CARMEN log needs odometry in every frame")
+        if self._geometry is None:
+            self._params(frame)
+        elif self._geometry != (frame.num_beams, frame.angle_min, frame.angle_increment,
+                                frame.max_range):
+            raise ValueError(f"frame {frame.index}: laser geometry changed within the log")
+        t = frame.stamp
+        x, y, th = frame.odom
+        tv = rv = 0.0
+        if self._last is not None and t > self._last[0]:
+            dt = t - self._last[0]
+            prev = self._last[1]
+            tv = math.hypot(x - prev[0], y - prev[1]) / dt
+            rv = float(wrap_angle(th - prev[2])) / dt
+        self._last = (t, frame.odom)
+        pose = f"{x:.6f} {y:.6f} {th:.6f}"
+        stamp = f"{t:.6f} {HOST} {t:.6f}"
+        self._f.write(f"ODOM {pose} {tv:.6f} {rv:.6f} 0.000000 {stamp}\n")
+        r = np.where(frame.returned, frame.ranges, frame.max_range)
+        ranges = " ".join(np.char.mod("%.3f", r).tolist())
+        if self._flaser:
+            self._f.write(f"FLASER {frame.num_beams} {ranges} {pose} {pose} {stamp}\n")
+        else:
+            fov = frame.angle_increment * (frame.num_beams - 1)
+            self._f.write(
+                f"ROBOTLASER1 0 {frame.angle_min:.9f} {fov:.9f} {frame.angle_increment:.9f} "
+                f"{frame.max_range:g} 0.01 0 {frame.num_beams} {ranges} 0 {pose} {pose} "
+                f"{tv:.6f} {rv:.6f} 0 0 0 {stamp}\n"
+            )
+        self.count += 1
+
+    def close(self, ok: bool = True) -> None:
+        """Finish the file; with ``ok=False`` (an error) an atomic writer discards it."""
+        if self._ctx is not None:
+            if ok:
+                self._ctx.__exit__(None, None, None)
+            else:
+                err = RuntimeError("recording aborted")
+                self._ctx.__exit__(RuntimeError, err, None)
+            self._ctx = None
+        else:
+            self._f.close()
+
+    def __enter__(self) -> CarmenWriter:
+        return self
+
+    def __exit__(self, et, ev, tb) -> None:
+        self.close(ok=et is None)
+
+
+def write_carmen(path: str | os.PathLike[str], frames: Iterable[ScanFrame], *,
+                 comment: str = "") -> int:
+    """Write all frames to a CARMEN log atomically; returns the number of scans written."""
+    with CarmenWriter(path, comment=comment) as w:
+        for frame in frames:
+            w.write(frame)
+    return w.count
+
+
+def _open_text(path: Path) -> IO[str]:
+    with open(path, "rb") as probe:
+        magic = probe.read(2)
+    if magic == b"\x1f\x8b":
+        return gzip.open(path, "rt", encoding="ascii", errors="replace")
+    return open(path, encoding="ascii", errors="replace")
+
+
+def read_carmen(path: str | os.PathLike[str]) -> Iterator[ScanFrame]:
+    """Yield the scans of a CARMEN log (FLASER and ROBOTLASER1 lines), lazily, in file order.
+
+    The odometry of a scan is the pose its own line carries. A malformed line raises
+    :class:`InputError` naming the file and line.
+    """
+    path = Path(path)
+    params: dict[str, str] = {}
+    index = 0
+    with _open_text(path) as f:
+        for no, line in enumerate(f, start=1):
+            parts = line.split()
+            if not parts or parts[0].startswith("#"):
+                continue
+            kind = parts[0]
+            where = f"{path}:{no}"
+            if kind == "PARAM" and len(parts) >= 3:
+                params[parts[1]] = parts[2]
+                continue
+            if kind not in ("FLASER", "ROBOTLASER1"):
+                continue
+            try:
+                frame = _parse_laser(kind, parts, params, index)
+            except (ValueError, IndexError) as exc:
+                raise InputError(f"{where}: bad {kind} line: {exc}") from exc
+            index += 1
+            yield frame
+
+
+def _parse_laser(kind: str, parts: list[str], params: dict[str, str], index: int) -> ScanFrame:
+    if kind == "FLASER":
+        n = int(parts[1])
+        if n < 1:
+            raise ValueError(f"declares {n} ranges")
+        if len(parts) != 2 + n + 9:
+            raise ValueError(f"declares {n} ranges but holds {len(parts) - 11} "
+                             f"(expected {2 + n + 9} fields, got {len(parts)})")
+        ranges = np.array(parts[2:2 + n], dtype=np.float64)
+        tail = parts[2 + n:]
+        odom = np.array(tail[3:6], dtype=np.float64)
+        stamp = float(tail[6])
+        inc = math.radians(float(params.get("laser_front_laser_resolution", "1")))
+        angle_min = -inc * (n - 1) / 2.0
+        max_range = float(params.get("robot_front_laser_max", "81.83"))
+    else:
+        angle_min, _fov, inc, max_range = (float(v) for v in parts[2:6])
+        n = int(parts[8])
+        ranges = np.array(parts[9:9 + n], dtype=np.float64)
+        n_rem = int(parts[9 + n])
+        tail = parts[10 + n + n_rem:]
+        if len(ranges) != n or len(tail) != 14:
+            raise ValueError(f"declares {n} ranges and {n_rem} remissions but the field "
+                             "count does not match")
+        odom = np.array(tail[0:3], dtype=np.float64)
+        stamp = float(tail[11])
+    if not np.isfinite(ranges).all() or (ranges < 0).any():
+        raise ValueError("ranges must be finite and >= 0")
+    if not np.isfinite(odom).all() or not math.isfinite(stamp):
+        raise ValueError("pose and timestamp must be finite")
+    ranges = np.where((ranges >= max_range) | (ranges <= 0), np.inf, ranges)
+    return ScanFrame(stamp=stamp, ranges=ranges, angle_min=angle_min, angle_increment=inc,
+                     max_range=max_range, odom=odom, index=index)

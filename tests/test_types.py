@@ -1,0 +1,125 @@
+"""Pose algebra and the scan frame."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from vmp.types import (
+    ScanFrame,
+    compose,
+    inverse,
+    relative,
+    rotation_matrix,
+    transform_points,
+    wrap_angle,
+)
+
+coord = st.floats(-1e3, 1e3, allow_nan=False)
+angle = st.floats(-20.0, 20.0, allow_nan=False)
+pose = st.tuples(coord, coord, angle).map(lambda p: np.array(p))
+poses = arrays(np.float64, (5, 3), elements=st.floats(-50, 50, allow_nan=False))
+
+
+def assert_pose_close(a, b, tol=1e-6):
+    a, b = np.asarray(a), np.asarray(b)
+    np.testing.assert_allclose(a[..., :2], b[..., :2], atol=tol)
+    np.testing.assert_allclose(wrap_angle(a[..., 2] - b[..., 2]), 0.0, atol=tol)
+
+
+@given(angle)
+def test_wrap_lands_in_half_open_interval_and_keeps_direction(t):
+    w = float(wrap_angle(t))
+    assert -math.pi <= w < math.pi
+    assert math.isclose(math.cos(w), math.cos(t), abs_tol=1e-9)
+    assert math.isclose(math.sin(w), math.sin(t), abs_tol=1e-9)
+
+
+def test_wrap_of_pi_is_minus_pi():
+    assert wrap_angle(math.pi) == -math.pi
+    assert wrap_angle(-math.pi) == -math.pi
+
+
+@given(pose)
+def test_compose_with_inverse_is_identity(p):
+    assert_pose_close(compose(p, inverse(p)), [0, 0, 0], tol=1e-6)
+    assert_pose_close(compose(inverse(p), p), [0, 0, 0], tol=1e-6)
+
+
+@given(pose, pose, pose)
+def test_compose_is_associative(a, b, c):
+    assert_pose_close(compose(compose(a, b), c), compose(a, compose(b, c)), tol=1e-6)
+
+
+@given(pose, pose)
+def test_relative_undoes_compose(a, b):
+    assert_pose_close(relative(a, compose(a, b)), b, tol=1e-6)
+    assert_pose_close(relative(a, b), compose(inverse(a), b), tol=1e-6)
+
+
+@given(poses, poses)
+def test_vectorised_equals_one_by_one(a, b):
+    batch = compose(a, b)
+    for i in range(len(a)):
+        np.testing.assert_allclose(batch[i], compose(a[i], b[i]))
+    batch_rel = relative(a, b)
+    for i in range(len(a)):
+        np.testing.assert_allclose(batch_rel[i], relative(a[i], b[i]))
+
+
+def test_compose_by_hand():
+    # Robot at (1, 2) facing +y; a point 1 m ahead of it is at (1, 3).
+    p = compose([1.0, 2.0, math.pi / 2], [1.0, 0.0, math.pi / 2])
+    np.testing.assert_allclose(p, [1.0, 3.0, -math.pi], atol=1e-12)
+
+
+@given(pose)
+def test_transform_points_matches_rotation_matrix(p):
+    pts = np.array([[1.0, 0.0], [0.0, 2.0], [-3.0, 0.5]])
+    expected = pts @ rotation_matrix(p[2]).T + p[:2]
+    np.testing.assert_allclose(transform_points(p, pts), expected, atol=1e-9)
+    # A point transformed like a pose's position.
+    q = compose(p, [pts[2, 0], pts[2, 1], 0.0])
+    np.testing.assert_allclose(transform_points(p, pts)[2], q[:2], atol=1e-9)
+
+
+def test_pose_shape_is_checked():
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
+        compose([1, 2], [1, 2, 3])
+
+
+def frame(ranges, **kw):
+    args = dict(stamp=0.0, ranges=ranges, angle_min=-math.pi / 2,
+                angle_increment=math.pi / 2, max_range=8.0)
+    args.update(kw)
+    return ScanFrame(**args)
+
+
+def test_scan_frame_marks_no_return_explicitly():
+    f = frame([1.0, np.inf, 2.0])
+    assert f.returned.tolist() == [True, False, True]
+    np.testing.assert_allclose(f.free_ranges(), [1.0, 8.0, 2.0])
+    np.testing.assert_allclose(f.points(), [[0.0, -1.0], [0.0, 2.0]], atol=1e-12)
+    np.testing.assert_allclose(f.angles, [-math.pi / 2, 0.0, math.pi / 2])
+    assert f.num_beams == 3
+
+
+@pytest.mark.parametrize(
+    "ranges, message",
+    [([1.0, np.nan], "NaN"), ([1.0, 0.0], "positive"), ([1.0, -2.0], "positive"),
+     ([1.0, 9.0], "max_range"), ([], "non-empty")],
+)
+def test_scan_frame_rejects_bad_ranges(ranges, message):
+    with pytest.raises(ValueError, match=message):
+        frame(ranges)
+
+
+def test_scan_frame_is_immutable_and_checks_poses():
+    f = frame([1.0, 2.0], odom=[0, 0, 0])
+    with pytest.raises(ValueError):
+        f.ranges[0] = 3.0
+    with pytest.raises(ValueError, match="odom"):
+        frame([1.0], odom=[0, np.nan, 0])

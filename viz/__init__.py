@@ -1,0 +1,1 @@
+"""Rerun views of the map being assembled; plain arrays in, imports nothing of ``vmp``."""

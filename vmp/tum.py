@@ -1,0 +1,61 @@
+"""TUM trajectory files (``t x y z qx qy qz qw``), the format evo and most SLAM tools read."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from vmp.errors import InputError
+from vmp.fileio import atomic_write
+from vmp.types import FloatArray, wrap_angle
+
+__all__ = ["read_tum", "write_tum"]
+
+
+def write_tum(path: str | Path, stamps: FloatArray, poses: FloatArray) -> None:
+    """Write planar poses ``(N, 3)`` at ``stamps`` ``(N,)`` with z = 0 and a yaw quaternion."""
+    stamps = np.asarray(stamps, dtype=np.float64)
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 3 or len(stamps) != len(poses):
+        raise ValueError(f"need stamps (N,) and poses (N, 3), got {stamps.shape}, {poses.shape}")
+    half = poses[:, 2] / 2.0
+    table = np.column_stack([
+        stamps, poses[:, 0], poses[:, 1], np.zeros(len(poses)),
+        np.zeros(len(poses)), np.zeros(len(poses)), np.sin(half), np.cos(half),
+    ])
+    with atomic_write(path, "w", encoding="ascii") as f:
+        f.write("# timestamp x y z qx qy qz qw\n")
+        np.savetxt(f, table, fmt=["%.6f"] + ["%.6f"] * 3 + ["%.9f"] * 4)
+
+
+def read_tum(path: str | Path) -> tuple[FloatArray, FloatArray]:
+    """Read a TUM file into stamps ``(N,)`` and planar poses ``(N, 3)``, yaw from the quaternion."""
+    path = Path(path)
+    rows = []
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read: {exc}") from exc
+    for no, line in enumerate(lines, start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        parts = text.replace(",", " ").split()
+        if len(parts) != 8:
+            raise InputError(f"{path}:{no}: expected 8 values 't x y z qx qy qz qw', "
+                             f"got {len(parts)}")
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError as exc:
+            raise InputError(f"{path}:{no}: not a number: {exc}") from exc
+        if not all(math.isfinite(v) for v in vals):
+            raise InputError(f"{path}:{no}: values must be finite")
+        rows.append(vals)
+    if not rows:
+        raise InputError(f"{path}: no poses (expected lines 't x y z qx qy qz qw')")
+    a = np.array(rows)
+    qx, qy, qz, qw = a[:, 4], a[:, 5], a[:, 6], a[:, 7]
+    yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy**2 + qz**2))
+    return a[:, 0], np.column_stack([a[:, 1], a[:, 2], wrap_angle(yaw)])

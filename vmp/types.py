@@ -1,0 +1,177 @@
+"""Pose algebra on SE(2) and the scan frame that every source yields.
+
+A pose is ``(x, y, theta)`` in metres and radians with theta wrapped to [-pi, pi).
+Every function takes a single pose of shape ``(3,)`` or a stack of shape ``(..., 3)`` and
+broadcasts like NumPy. This module imports nothing of the project.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+__all__ = [
+    "ScanFrame",
+    "compose",
+    "inverse",
+    "relative",
+    "rotation_matrix",
+    "transform_points",
+    "wrap_angle",
+]
+
+
+def wrap_angle(theta: ArrayLike) -> FloatArray:
+    """Wrap angles to [-pi, pi)."""
+    t = np.asarray(theta, dtype=np.float64)
+    return (t + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _as_poses(p: ArrayLike) -> FloatArray:
+    a = np.asarray(p, dtype=np.float64)
+    if a.shape[-1:] != (3,):
+        raise ValueError(f"a pose has shape (..., 3), got {a.shape}")
+    return a
+
+
+def rotation_matrix(theta: ArrayLike) -> FloatArray:
+    """Rotation matrices ``(..., 2, 2)`` for angles ``(...)``."""
+    t = np.asarray(theta, dtype=np.float64)
+    c, s = np.cos(t), np.sin(t)
+    return np.stack([np.stack([c, -s], axis=-1), np.stack([s, c], axis=-1)], axis=-2)
+
+
+def compose(a: ArrayLike, b: ArrayLike) -> FloatArray:
+    """``a (+) b``: pose ``b``, given in the frame of ``a``, in the frame ``a`` is given in."""
+    a, b = _as_poses(a), _as_poses(b)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
+    y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
+    return np.stack([x, y, wrap_angle(a[..., 2] + b[..., 2])], axis=-1)
+
+
+def inverse(a: ArrayLike) -> FloatArray:
+    """``(-) a``: the pose of the outer frame seen from ``a``, so ``a (+) inverse(a) = 0``."""
+    a = _as_poses(a)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = -c * a[..., 0] - s * a[..., 1]
+    y = s * a[..., 0] - c * a[..., 1]
+    return np.stack([x, y, wrap_angle(-a[..., 2])], axis=-1)
+
+
+def relative(a: ArrayLike, b: ArrayLike) -> FloatArray:
+    """``(-) a (+) b``: pose ``b`` expressed in the frame of pose ``a``."""
+    a, b = _as_poses(a), _as_poses(b)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    return np.stack(
+        [c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], axis=-1
+    )
+
+
+def transform_points(pose: ArrayLike, points: ArrayLike) -> FloatArray:
+    """Map points ``(..., N, 2)`` given in the frame of ``pose`` to the outer frame.
+
+    ``pose`` has shape ``(..., 3)``; its leading dimensions broadcast against the points'.
+    """
+    p = _as_poses(pose)
+    pts = np.asarray(points, dtype=np.float64)
+    c = np.cos(p[..., 2])[..., None]
+    s = np.sin(p[..., 2])[..., None]
+    x = p[..., 0, None] + c * pts[..., 0] - s * pts[..., 1]
+    y = p[..., 1, None] + s * pts[..., 0] + c * pts[..., 1]
+    return np.stack([x, y], axis=-1)
+
+
+def _readonly(a: ArrayLike, dtype: type = np.float64) -> FloatArray:
+    out = np.array(a, dtype=dtype, copy=True)
+    out.flags.writeable = False
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class ScanFrame:
+    """One laser scan with the odometry (and, in simulation, the true pose) at its time.
+
+    ``ranges`` holds one distance per beam in metres. A beam without a return (nothing within
+    ``max_range``, or the sensor reported no echo) is marked explicitly: its range is
+    ``+inf``. It bounds free space but is not an obstacle. Finite ranges are never NaN,
+    negative or beyond ``max_range``; sources convert their own conventions (zero, max-range
+    codes) when they build a frame.
+
+    Poses are those of the scanner: ``odom`` in the odometry frame, ``true_pose`` in the
+    world frame (only a simulator knows it).
+    """
+
+    stamp: float
+    ranges: FloatArray
+    angle_min: float
+    angle_increment: float
+    max_range: float
+    odom: FloatArray | None = None
+    true_pose: FloatArray | None = None
+    index: int = field(default=-1)
+
+    def __post_init__(self) -> None:
+        r = _readonly(self.ranges)
+        if r.ndim != 1 or r.size == 0:
+            raise ValueError(f"ranges must be a non-empty 1-D array, got shape {r.shape}")
+        if np.isnan(r).any():
+            raise ValueError("ranges hold NaN: mark beams without a return as +inf")
+        if (r <= 0).any():
+            raise ValueError("ranges must be positive (mark beams without a return as +inf)")
+        finite = np.isfinite(r)
+        if (r[finite] > self.max_range).any():
+            raise ValueError(f"finite ranges must not exceed max_range={self.max_range}")
+        if not (np.isfinite(self.max_range) and self.max_range > 0):
+            raise ValueError(f"max_range must be positive and finite, got {self.max_range}")
+        if not (np.isfinite(self.angle_increment) and self.angle_increment != 0):
+            raise ValueError(
+                f"angle_increment must be finite and non-zero, got {self.angle_increment}"
+            )
+        object.__setattr__(self, "ranges", r)
+        for name in ("odom", "true_pose"):
+            v = getattr(self, name)
+            if v is not None:
+                p = _readonly(v)
+                if p.shape != (3,) or not np.isfinite(p).all():
+                    raise ValueError(f"{name} must be a finite (x, y, theta), got {v!r}")
+                object.__setattr__(self, name, p)
+
+    @property
+    def num_beams(self) -> int:
+        return int(self.ranges.size)
+
+    @property
+    def angles(self) -> FloatArray:
+        """Beam angles in the scanner frame (radians)."""
+        return self.angle_min + self.angle_increment * np.arange(self.ranges.size)
+
+    @property
+    def angle_max(self) -> float:
+        return float(self.angle_min + self.angle_increment * (self.ranges.size - 1))
+
+    @property
+    def field_of_view(self) -> float:
+        """Angle covered by the beams: the span between first and last plus one step."""
+        return float(abs(self.angle_increment) * self.ranges.size)
+
+    @property
+    def returned(self) -> NDArray[np.bool_]:
+        """True for beams that hit something within ``max_range``."""
+        return np.isfinite(self.ranges)
+
+    def free_ranges(self) -> FloatArray:
+        """Extent of free space along each beam: the range, or ``max_range`` without a return."""
+        return np.where(self.returned, self.ranges, self.max_range)
+
+    def points(self) -> FloatArray:
+        """End points ``(K, 2)`` of the returned beams, in the scanner frame."""
+        ok = self.returned
+        a = self.angles[ok]
+        r = self.ranges[ok]
+        return np.stack([r * np.cos(a), r * np.sin(a)], axis=-1)
