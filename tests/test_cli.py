@@ -86,3 +86,13 @@ def test_installed_command_help_version_and_errors(tmp_path):
     assert bad.returncode == 2
     assert "missing.yaml: no such scenario file" in bad.stderr
     assert "Traceback" not in bad.stderr
+
+
+def test_outputs_get_the_usual_file_mode(tmp_path):
+    import os
+
+    out = tmp_path / "m.clf"
+    assert main(["simulate", "lab", "--scans", "3", "--out", str(out), "-q"]) == 0
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (out.stat().st_mode & 0o777) == 0o666 & ~mask
