@@ -38,6 +38,7 @@ class ManagerConfig:
     """Settings of the milestone manager; lengths in metres, angles in radians."""
 
     length: int = 180  # signature samples
+    clamp_range: float = 15.0  # ranges beyond this (or no return) count as this far (m)
     method: str = "cca"  # exact comparison and heading search: ed, cca, dct, hwt
     compression: str = "dct"  # features for storage and the shortlist: dct or hwt
     keep: float = 0.1  # fraction of coefficients kept by DCT / HWT
@@ -219,7 +220,8 @@ class MilestoneManager:
         if r.ndim != 1:
             raise ValueError(f"ranges must be 1-D, got shape {r.shape}")
         g = ScanGeometry(len(r), float(angle_min), float(angle_increment), float(max_range))
-        sig = make_signature(r, max_range, self.config.length, g.circular)
+        reach = min(float(max_range), self.config.clamp_range)
+        sig = make_signature(r, reach, self.config.length, g.circular)
         if self.geometry is None:
             self.geometry = g
         elif (g.num_beams, g.angle_min, g.angle_increment) != (
@@ -256,8 +258,9 @@ class MilestoneManager:
         """Why a place makes a poor milestone (``few_returns``, ``flat``, ``aliased``), or None."""
         c = self.config
         r = np.asarray(ranges, dtype=np.float64)
+        reach = min(float(max_range), c.clamp_range)
         with np.errstate(invalid="ignore"):
-            returned = np.isfinite(r) & (r > 0) & (r < max_range)
+            returned = np.isfinite(r) & (r > 0) & (r < reach)
         if returned.mean() < c.min_returned:
             return "few_returns"
         if float(np.std(sig)) < c.min_relief:
