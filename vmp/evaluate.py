@@ -1,0 +1,161 @@
+"""Trajectory accuracy: ATE after SE(2) alignment, RPE, and the Kümmerle relation metric.
+
+The ATE and RPE follow evo's definitions (``evo_ape`` with ``--align``, ``evo_rpe`` with a
+frame delta), on poses matched by timestamp, so users can check our numbers with evo.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vmp.errors import InputError
+from vmp.types import FloatArray, compose, inverse, relative, wrap_angle
+
+__all__ = ["ATE", "RPE", "RelationError", "align_se2", "associate", "ate", "read_relations",
+           "relation_error", "rpe"]
+
+
+def associate(stamps_a: FloatArray, stamps_b: FloatArray,
+              max_difference: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs of the nearest stamps within ``max_difference`` seconds (each b used once)."""
+    a = np.asarray(stamps_a, dtype=np.float64)
+    b = np.asarray(stamps_b, dtype=np.float64)
+    order = np.argsort(b, kind="stable")
+    bs = b[order]
+    pos = np.clip(np.searchsorted(bs, a), 1, max(len(bs) - 1, 1))
+    left = np.clip(pos - 1, 0, len(bs) - 1)
+    right = np.clip(pos, 0, len(bs) - 1)
+    pick = np.where(np.abs(bs[left] - a) <= np.abs(bs[right] - a), left, right)
+    ok = np.abs(bs[pick] - a) <= max_difference
+    ia = np.flatnonzero(ok)
+    ib = order[pick[ok]]
+    _, first = np.unique(ib, return_index=True)
+    keep = np.sort(first)
+    return ia[keep], ib[keep]
+
+
+def align_se2(estimate: FloatArray, reference: FloatArray) -> FloatArray:
+    """The rigid motion ``(x, y, theta)`` that best maps estimate positions onto the reference.
+
+    Umeyama's least squares alignment without scale, in the plane.
+    """
+    p = np.asarray(estimate, dtype=np.float64)[:, :2]
+    q = np.asarray(reference, dtype=np.float64)[:, :2]
+    mp, mq = p.mean(axis=0), q.mean(axis=0)
+    C = (q - mq).T @ (p - mp) / len(p)
+    U, _, Vt = np.linalg.svd(C)
+    S = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ S @ Vt
+    t = mq - R @ mp
+    return np.array([t[0], t[1], math.atan2(R[1, 0], R[0, 0])])
+
+
+@dataclass(frozen=True)
+class ATE:
+    rmse: float  # m
+    mean: float
+    max: float
+    pairs: int
+
+
+def ate(est_stamps: FloatArray, est: FloatArray, ref_stamps: FloatArray, ref: FloatArray,
+        align: bool = True, max_difference: float = 0.01) -> ATE:
+    """Absolute trajectory error of positions (after SE(2) alignment unless ``align=False``)."""
+    ia, ib = associate(est_stamps, ref_stamps, max_difference)
+    if len(ia) < 2:
+        raise InputError("fewer than 2 poses share a timestamp with the ground truth")
+    e, r = np.asarray(est)[ia], np.asarray(ref)[ib]
+    if align:
+        e = compose(align_se2(e, r), e)
+    d = np.hypot(*(e[:, :2] - r[:, :2]).T)
+    return ATE(float(np.sqrt(np.mean(d**2))), float(d.mean()), float(d.max()), len(ia))
+
+
+@dataclass(frozen=True)
+class RPE:
+    trans_rmse: float  # m per delta
+    rot_rmse: float  # rad per delta
+    delta: int
+    pairs: int
+
+
+def rpe(est_stamps: FloatArray, est: FloatArray, ref_stamps: FloatArray, ref: FloatArray,
+        delta: int = 1, max_difference: float = 0.01) -> RPE:
+    """Relative pose error over ``delta`` frames (evo_rpe ``--delta N --delta_unit f``)."""
+    ia, ib = associate(est_stamps, ref_stamps, max_difference)
+    e, r = np.asarray(est)[ia], np.asarray(ref)[ib]
+    if len(e) <= delta:
+        raise InputError(f"need more than {delta} matched poses for the RPE")
+    de = relative(e[:-delta], e[delta:])
+    dr = relative(r[:-delta], r[delta:])
+    err = relative(dr, de)
+    t = np.hypot(err[:, 0], err[:, 1])
+    return RPE(float(np.sqrt(np.mean(t**2))), float(np.sqrt(np.mean(err[:, 2] ** 2))), delta,
+               len(err))
+
+
+@dataclass(frozen=True)
+class RelationError:
+    trans_mean: float  # m
+    trans_std: float
+    rot_mean: float  # rad
+    rot_std: float
+    used: int
+    total: int
+
+
+def read_relations(path: str | Path) -> FloatArray:
+    """Relations ``(K, 5)``: t1, t2, x, y, yaw from a ``t1 t2 x y z roll pitch yaw`` file."""
+    path = Path(path)
+    rows = []
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read: {exc}") from exc
+    for no, line in enumerate(lines, start=1):
+        parts = line.split()
+        if not parts or parts[0].startswith("#"):
+            continue
+        if len(parts) != 8:
+            raise InputError(f"{path}:{no}: expected 't1 t2 x y z roll pitch yaw', "
+                             f"got {len(parts)} values")
+        try:
+            v = [float(p) for p in parts]
+        except ValueError as exc:
+            raise InputError(f"{path}:{no}: not a number: {exc}") from exc
+        rows.append([v[0], v[1], v[2], v[3], v[7]])
+    if not rows:
+        raise InputError(f"{path}: no relations")
+    return np.array(rows)
+
+
+def relation_error(stamps: FloatArray, poses: FloatArray, relations: FloatArray,
+                   max_difference: float = 1e-4) -> RelationError:
+    """Kümmerle et al.'s metric: error of each relative pose against its true relation."""
+    s = np.asarray(stamps, dtype=np.float64)
+    order = np.argsort(s, kind="stable")
+    ss = s[order]
+
+    def nearest(t: FloatArray) -> tuple[np.ndarray, np.ndarray]:
+        pos = np.clip(np.searchsorted(ss, t), 1, len(ss) - 1)
+        left, right = pos - 1, pos
+        pick = np.where(np.abs(ss[left] - t) <= np.abs(ss[right] - t), left, right)
+        return order[pick], np.abs(ss[pick] - t) <= max_difference
+
+    i1, ok1 = nearest(relations[:, 0])
+    i2, ok2 = nearest(relations[:, 1])
+    ok = ok1 & ok2
+    if not ok.any():
+        raise InputError("no relation has both of its stamps among the trajectory's stamps")
+    p = np.asarray(poses, dtype=np.float64)
+    delta = relative(p[i1[ok]], p[i2[ok]])
+    rel = relations[ok][:, 2:5]
+    err = compose(inverse(rel), delta)
+    t = np.hypot(err[:, 0], err[:, 1])
+    r = np.abs(wrap_angle(err[:, 2]))
+    return RelationError(float(t.mean()), float(t.std()), float(r.mean()), float(r.std()),
+                         int(ok.sum()), len(relations))

@@ -1,0 +1,109 @@
+"""The fusion filter: an extended Kalman filter on (x, y, theta), built on filterpy.
+
+It predicts from odometry increments, with noise that grows with the distance driven and the
+angle turned, and corrects from pose measurements (a milestone pose composed with a registered
+relative pose). filterpy subtracts residuals plainly; here the heading residual is wrapped, and
+theta is wrapped again after every update.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+
+from vmp.types import FloatArray, compose, wrap_angle
+
+__all__ = ["CHI2_3DOF_99", "MotionNoise", "PoseFilter", "pose_residual"]
+
+CHI2_3DOF_99 = 11.34
+
+
+@dataclass(frozen=True)
+class MotionNoise:
+    """Odometry noise: variance grows linearly with distance and turn (sqrt growth of sigma)."""
+
+    trans_per_m: float = 0.05  # sigma of translation error accumulated over 1 m (m)
+    rot_per_m: float = np.radians(1.0)  # sigma of heading error per metre driven (rad)
+    rot_per_rad: float = 0.05  # sigma of heading error per radian turned (rad)
+    floor_xy: float = 0.001  # per step (m)
+    floor_theta: float = np.radians(0.05)  # per step (rad)
+
+
+def pose_residual(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``a - b`` with the heading difference wrapped to [-pi, pi)."""
+    d = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+    d[2] = wrap_angle(d[2])
+    return d
+
+
+class _OdometryEKF(ExtendedKalmanFilter):
+    """filterpy's EKF with the motion model ``x (+) u``."""
+
+    def predict_x(self, u: FloatArray = 0) -> None:
+        x = self.x
+        c, s = np.cos(x[2]), np.sin(x[2])
+        self.F = np.array([[1.0, 0.0, -s * u[0] - c * u[1]],
+                           [0.0, 1.0, c * u[0] - s * u[1]],
+                           [0.0, 0.0, 1.0]])
+        self.x = compose(x, u)
+
+
+class PoseFilter:
+    """EKF of the scanner pose in the map frame."""
+
+    def __init__(self, pose: FloatArray, covariance: FloatArray,
+                 noise: MotionNoise | None = None) -> None:
+        self.noise = noise or MotionNoise()
+        self._ekf = _OdometryEKF(dim_x=3, dim_z=3)
+        self._ekf.x = np.asarray(pose, dtype=np.float64).copy()
+        self._ekf.P = np.asarray(covariance, dtype=np.float64).copy()
+
+    @property
+    def pose(self) -> FloatArray:
+        return self._ekf.x
+
+    @property
+    def covariance(self) -> FloatArray:
+        return self._ekf.P
+
+    def set_pose(self, pose: FloatArray) -> None:
+        """Move the estimate without changing its uncertainty (after the map moved under it)."""
+        self._ekf.x = np.asarray(pose, dtype=np.float64).copy()
+
+    def predict(self, u: FloatArray, covariance: FloatArray | None = None) -> None:
+        """Move by the increment ``u`` (scanner frame) and grow the covariance.
+
+        ``covariance`` is the increment's, in the scanner frame; without it the motion noise
+        model gives one that grows with the distance driven and the angle turned.
+        """
+        u = np.asarray(u, dtype=np.float64)
+        if covariance is None:
+            n = self.noise
+            dist = float(np.hypot(u[0], u[1]))
+            var_xy = n.trans_per_m**2 * dist + n.floor_xy**2
+            var_th = n.rot_per_m**2 * dist + n.rot_per_rad**2 * abs(u[2]) + n.floor_theta**2
+            covariance = np.diag([var_xy, var_xy, var_th])
+        th = self._ekf.x[2]
+        c, s = np.cos(th), np.sin(th)
+        G = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        self._ekf.Q = G @ covariance @ G.T
+        self._ekf.predict(u=u)
+        self._ekf.x[2] = wrap_angle(self._ekf.x[2])
+
+    def mahalanobis2(self, z: FloatArray, R: FloatArray) -> float:
+        """Squared Mahalanobis distance of a pose measurement from the prediction."""
+        y = pose_residual(z, self._ekf.x)
+        S = self._ekf.P + R
+        return float(y @ np.linalg.solve(S, y))
+
+    def update(self, z: FloatArray, R: FloatArray) -> FloatArray:
+        """Correct with a pose measurement ``z`` of covariance ``R``; returns the pose change."""
+        before = self._ekf.x.copy()
+        self._ekf.update(np.asarray(z, dtype=np.float64), HJacobian=lambda x: np.eye(3),
+                         Hx=lambda x: x, R=np.asarray(R, dtype=np.float64),
+                         residual=pose_residual)
+        self._ekf.x[2] = wrap_angle(self._ekf.x[2])
+        self._ekf.P = 0.5 * (self._ekf.P + self._ekf.P.T)
+        return pose_residual(self._ekf.x, before)

@@ -1,0 +1,367 @@
+"""The SLAM pipeline: predict, match, correct, insert, show, for every scan.
+
+* predict: the filter moves by the odometry increment since the last scan;
+* match: the live scan is registered against the milestone its segment is anchored at, and
+  against the stored milestones whose signatures match it within the filter's gate; a match is
+  rejected on a poor registration fit, an ambiguous signature (a rival place scores nearly as
+  well), or a failed Mahalanobis gate, and a rejected match changes nothing;
+* correct: the filter is updated with the best accepted match (the milestone pose composed
+  with the registered relative pose);
+* insert: the scan goes into the open segment as a polygon in the anchor's frame, and the
+  correction is spread over the scans since the previous one; when the robot reaches a place
+  where it should record a milestone, or comes back to a stored one, the segment closes and the
+  next is anchored there; a return adds a loop edge to the milestone graph, whose adjustment
+  moves the milestones and with them their segments;
+* show: the view (a null view when nobody watches) gets what happened.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from milestones.manager import ManagerConfig, MilestoneManager
+from vmp.fusion import CHI2_3DOF_99, MotionNoise, PoseFilter
+from vmp.pose_graph import PoseGraph
+from vmp.registration import Reference, Registration, RegistrationConfig, register
+from vmp.scan_odometry import ScanOdometry, ScanOdometryConfig, motion_covariance
+from vmp.types import FloatArray, ScanFrame, compose, inverse, relative
+from vmp.vector_map import BeamGeometry, VectorMap
+from vmp.view import NullView, View
+
+__all__ = ["Match", "Pipeline", "PipelineConfig", "fuse"]
+
+
+def fuse(a: FloatArray, cov_a: FloatArray, b: FloatArray, cov_b: FloatArray
+         ) -> tuple[FloatArray, FloatArray]:
+    """Two estimates of one relative pose combined by their information."""
+    info_a, info_b = np.linalg.inv(cov_a), np.linalg.inv(cov_b)
+    cov = np.linalg.inv(info_a + info_b)
+    d = np.asarray(a, dtype=np.float64) - b
+    d[2] = (d[2] + math.pi) % (2 * math.pi) - math.pi
+    return b + cov @ (info_a @ d), 0.5 * (cov + cov.T)
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Everything that tunes a mapping run (saved with every result)."""
+
+    motion: MotionNoise = field(default_factory=MotionNoise)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
+    scan_odometry: ScanOdometryConfig = field(default_factory=ScanOdometryConfig)
+    milestones: ManagerConfig = field(default_factory=ManagerConfig)
+    use_milestones: bool = True  # False: odometry only (the baseline)
+    max_rms: float = 0.05  # registration residual above which a match is a poor fit (m)
+    min_inliers: float = 0.5  # share of live points that must find a partner
+    max_ratio: float = 0.9  # signature score / best rival's above which a match is ambiguous
+    gate: float = CHI2_3DOF_99  # Mahalanobis gate of a pose measurement (3 dof, 99 %)
+    candidates: int = 2  # signature candidates registered per scan, besides the anchor
+    switch_margin: float = 0.3  # switch anchor when another milestone is this much nearer (m)
+    loop_chi2: float = 1.0  # adjust the graph when a new loop edge disagrees this much
+    min_points: int = 20  # fewer returns than this: the scan is not matched
+    initial_sigma: tuple[float, float, float] = (0.01, 0.01, math.radians(0.5))
+
+
+@dataclass(frozen=True)
+class Match:
+    """A milestone the live scan was registered against, and the verdict."""
+
+    milestone: int
+    source: str  # "anchor" or "signature"
+    registration: Registration
+    z: FloatArray  # the pose measurement in the map frame
+    R: FloatArray  # its covariance
+    mahalanobis2: float
+    ratio: float
+    accepted: bool
+    reason: str  # why it was rejected ("" when accepted)
+
+
+class Pipeline:
+    """Build a vector map and a corrected trajectory from scan frames."""
+
+    def __init__(self, geometry: BeamGeometry, config: PipelineConfig | None = None,
+                 view: View | None = None) -> None:
+        self.config = config or PipelineConfig()
+        self.view: View = view or NullView()
+        self.geometry = geometry
+        self.map = VectorMap(geometry)
+        self.milestones = MilestoneManager(self.config.milestones)
+        self.graph = PoseGraph()
+        self.filter: PoseFilter | None = None
+        self.anchor: int | None = None
+        self.stats: Counter[str] = Counter()
+        self.online: list[FloatArray] = []  # filter pose after each scan
+        self.odometry: list[FloatArray] = []
+        self.truth: list[FloatArray | None] = []
+        self._refs: dict[int, Reference] = {}
+        self._last_odom: FloatArray | None = None
+        self._last_corrected = -1  # index of the scan the last correction was spread to
+        self._pending: FloatArray | None = None  # pose before this scan's correction
+        self._anchor_reg: Registration | None = None  # this scan's accepted anchor match
+        self._abs_cov: list[FloatArray] = []  # per milestone: covariance in the map frame
+        self.scan_odometry = ScanOdometry(self.config.scan_odometry, self.config.registration,
+                                          self.config.motion)
+        self._started = time.perf_counter()
+
+    # ---- one scan ----------------------------------------------------------------------------
+
+    def step(self, frame: ScanFrame) -> None:
+        self.predict(frame)
+        matches = self.match(frame)
+        self.correct(matches)
+        self.insert(frame, matches)
+        self.show(frame, matches)
+
+    def predict(self, frame: ScanFrame) -> None:
+        odom = frame.odom if frame.odom is not None else np.zeros(3)
+        if self.filter is None:
+            start = odom if frame.odom is not None else np.zeros(3)
+            self.filter = PoseFilter(start, np.diag(np.square(self.config.initial_sigma)),
+                                     self.config.motion)
+        else:
+            wheel = relative(self._last_odom, odom) if frame.odom is not None else np.zeros(3)
+            u, q = self.scan_odometry.increment(frame.points(), wheel)
+            self.filter.predict(u, q)
+        self._last_odom = odom
+        self._pending = None
+        self._anchor_reg = None
+
+    def match(self, frame: ScanFrame) -> list[Match]:
+        c = self.config
+        if not c.use_milestones or self.anchor is None:
+            return []
+        points = frame.points()
+        if len(points) < c.min_points:
+            self.stats["scans too sparse to match"] += 1
+            return []
+        x, P = self.filter.pose, self.filter.covariance
+        targets: list[tuple[int, str, float, float | None]] = [(self.anchor, "anchor", 0.0, None)]
+        for cand in self.milestones.query(frame.ranges, frame.angle_min, frame.angle_increment,
+                                          frame.max_range, predicted_pose=x, covariance=P,
+                                          max_candidates=c.candidates + 1):
+            if cand.id != self.anchor and len(targets) <= c.candidates:
+                targets.append((cand.id, "signature", cand.ratio, cand.heading_offset))
+        return [self._register(mid, source, ratio, offset, points, x, P)
+                for mid, source, ratio, offset in targets]
+
+    def _register(self, mid: int, source: str, ratio: float, offset: float | None,
+                  points: FloatArray, x: FloatArray, P: FloatArray) -> Match:
+        c = self.config
+        ms_pose = self.milestones.pose(mid)
+        guess = relative(ms_pose, x)
+        if offset is not None and P[2, 2] > math.radians(10) ** 2:
+            guess[2] = offset  # an uncertain heading: trust the signature's instead
+        reg = register(self._reference(mid), points, guess, c.registration)
+        z = compose(ms_pose, reg.pose)
+        rot = np.eye(3)
+        rot[:2, :2] = [[math.cos(ms_pose[2]), -math.sin(ms_pose[2])],
+                       [math.sin(ms_pose[2]), math.cos(ms_pose[2])]]
+        R = rot @ reg.covariance @ rot.T
+        spread = R
+        if source == "signature":
+            # A return to an old milestone disagrees by the drift of both chains since.
+            spread = R + self._robot_cov_via_anchor() + self._abs_cov[mid]
+        d2 = self.filter.mahalanobis2(z, spread)
+        reason = ""
+        if not np.isfinite(reg.rms) or reg.rms > c.max_rms or reg.inliers < c.min_inliers:
+            reason = "poor fit"
+        elif source == "signature" and ratio > c.max_ratio:
+            reason = "ambiguous"
+        elif d2 > c.gate:
+            reason = "gate"
+        return Match(mid, source, reg, z, R, d2, ratio, reason == "", reason)
+
+    def correct(self, matches: list[Match]) -> None:
+        """Update the filter from the anchor match; a return to an old milestone instead
+        hands the segment over to it (see :meth:`insert`) and moves the graph."""
+        for m in matches:
+            self.stats[f"{m.source} matches accepted" if m.accepted
+                       else f"{m.source} matches rejected ({m.reason})"] += 1
+        anchor = [m for m in matches if m.accepted and m.source == "anchor"]
+        if not anchor:
+            return
+        self._pending = self.filter.pose.copy()
+        self.filter.update(anchor[0].z, anchor[0].R)
+        self._anchor_reg = anchor[0].registration
+
+    def insert(self, frame: ScanFrame, matches: list[Match]) -> None:
+        x = self.filter.pose
+        if self.anchor is None:
+            first = self.milestones.add(x, frame.ranges, frame.angle_min,
+                                        frame.angle_increment, frame.max_range, frame.stamp)
+            self._abs_cov.append(self.filter.covariance.copy())
+            self._start_segment(first, handover=None)
+        else:
+            self._maybe_switch_anchor(matches)
+        anchor_pose = self.milestones.pose(self.anchor)
+        before = self._pending if self._pending is not None else self.filter.pose
+        k = self.map.insert(frame.ranges, relative(anchor_pose, before), frame.stamp)
+        if self._pending is not None:
+            correction = compose(relative(anchor_pose, self.filter.pose),
+                                 inverse(relative(anchor_pose, before)))
+            self.map.spread(self._last_corrected + 1, correction)
+            self._last_corrected = k
+        self.online.append(self.filter.pose.copy())
+        self.odometry.append(self._last_odom.copy())
+        self.truth.append(None if frame.true_pose is None else frame.true_pose.copy())
+        if self.config.use_milestones:
+            new = self.milestones.consider(self.filter.pose, frame.ranges, frame.angle_min,
+                                           frame.angle_increment, frame.max_range, frame.stamp)
+            if new is not None:
+                self.stats["milestones recorded"] += 1
+                rel, cov = self._milestone_edge(self.anchor, new, self._robot_in_anchor())
+                self.graph.add(self.anchor, new, rel, cov, "path")
+                self._abs_cov.append(self._compound_cov(self.anchor, rel, cov))
+                self.view.milestone(new, self.milestones.pose(new))
+                self._start_segment(new, handover=rel)
+
+    def show(self, frame: ScanFrame, matches: list[Match]) -> None:
+        self.view.scan(len(self.map) - 1, frame.stamp, self.filter.pose, self._last_odom,
+                       frame.true_pose)
+        for m in matches:
+            self.view.match(m.milestone, self.milestones.pose(m.milestone), self.filter.pose,
+                            m.accepted, m.reason)
+
+    def _reference(self, mid: int) -> Reference:
+        """The registration reference of a milestone's stored scan (built once)."""
+        ref = self._refs.get(mid)
+        if ref is None:
+            r = self.milestones.scan(mid).astype(np.float64)
+            ok = np.isfinite(r)
+            a = self.geometry.angles[ok]
+            pts = np.stack([r[ok] * np.cos(a), r[ok] * np.sin(a)], axis=-1)
+            ref = self._refs[mid] = Reference(pts, self.config.registration)
+        return ref
+
+    # ---- segments and the graph -----------------------------------------------------------------
+
+    def _start_segment(self, anchor: int, handover: FloatArray | None) -> None:
+        self.anchor = anchor
+        self.map.new_segment(anchor, handover)
+        self._last_corrected = len(self.map) - 1
+
+    def _robot_in_anchor(self) -> tuple[FloatArray, FloatArray]:
+        """The robot's pose in the anchor's frame and its covariance.
+
+        The motion since the anchor bounds the uncertainty (odometry noise over that
+        distance); this scan's registration against the anchor narrows it where it sees.
+        """
+        rel = relative(self.milestones.pose(self.anchor), self.filter.pose)
+        cov = motion_covariance(rel, self.config.motion)
+        if self._anchor_reg is not None:
+            return rel, fuse(rel, self._anchor_reg.covariance, rel, cov)[1]
+        return rel, cov
+
+    def _milestone_edge(self, a: int, b: int, fallback: tuple[FloatArray, FloatArray]
+                        ) -> tuple[FloatArray, FloatArray]:
+        """Milestone ``b`` in ``a``'s frame by registering their stored scans.
+
+        ``fallback`` (pose and covariance, also the starting guess) stands when the two scans
+        do not register well.
+        """
+        guess, cov = fallback
+        ref_b = self._reference(b)
+        reg = register(self._reference(a), ref_b.points, guess, self.config.registration)
+        if (np.isfinite(reg.rms) and reg.rms <= self.config.max_rms
+                and reg.inliers >= self.config.min_inliers):
+            self.stats["milestone edges registered"] += 1
+            return fuse(reg.pose, reg.covariance, guess, cov)
+        self.stats["milestone edges from the filter"] += 1
+        return guess, cov
+
+    def _compound_cov(self, anchor: int, rel: FloatArray, cov: FloatArray) -> FloatArray:
+        """Map-frame covariance of ``anchor (+) rel``, given the edge covariance ``cov``."""
+        a = self.milestones.pose(anchor)
+        c, s = math.cos(a[2]), math.sin(a[2])
+        J1 = np.array([[1.0, 0.0, -s * rel[0] - c * rel[1]],
+                       [0.0, 1.0, c * rel[0] - s * rel[1]],
+                       [0.0, 0.0, 1.0]])
+        J2 = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return J1 @ self._abs_cov[anchor] @ J1.T + J2 @ cov @ J2.T
+
+    def _robot_cov_via_anchor(self) -> FloatArray:
+        """How uncertain the robot is in the map frame through its anchor's chain."""
+        rel = relative(self.milestones.pose(self.anchor), self.filter.pose)
+        return self._compound_cov(self.anchor, rel, np.zeros((3, 3)))
+
+    def _maybe_switch_anchor(self, matches: list[Match]) -> None:
+        """Hand over to a stored milestone the robot has come back to, adding a loop edge."""
+        x = self.filter.pose
+        d_anchor = float(np.hypot(*(self.milestones.pose(self.anchor)[:2] - x[:2])))
+        best = None
+        for m in matches:
+            if not m.accepted or m.source != "signature":
+                continue
+            d = float(np.hypot(*(self.milestones.pose(m.milestone)[:2] - x[:2])))
+            if d + self.config.switch_margin < d_anchor and (best is None or d < best[1]):
+                best = (m, d)
+        if best is None:
+            return
+        m = best[0]
+        rel_a, cov_a = self._robot_in_anchor()
+        z, cov = self._milestone_edge(self.anchor, m.milestone,
+                                      (compose(rel_a, inverse(m.registration.pose)),
+                                       cov_a + m.registration.covariance))
+        # Re-localise on the milestone we are handing over to (degenerate directions of its
+        # registration carry a huge covariance, so the filter keeps its own estimate there).
+        self._pending = self.filter.pose.copy() if self._pending is None else self._pending
+        self.filter.update(m.z, m.R)
+        x = self.filter.pose
+        sequential = abs(m.milestone - self.anchor) == 1
+        edge = self.graph.add(self.anchor, m.milestone, z, cov, "path" if sequential else "loop")
+        self.stats["anchor switches"] += 1
+        old_anchor_pose = self.milestones.pose(self.anchor).copy()
+        robot_in_old = relative(old_anchor_pose, x)
+        self._start_segment(m.milestone, handover=z)
+        if edge.kind == "loop":
+            self.stats["loop edges"] += 1
+            e = self.graph.error(self.milestones.poses, edge)
+            if float(e @ edge.information @ e) > self.config.loop_chi2:
+                self._adjust(robot_in_old, old_anchor_pose, m)
+
+    def _adjust(self, robot_in_old: FloatArray, old_anchor_pose: FloatArray, m: Match) -> None:
+        """Adjust the milestone graph; the robot moves with its new anchor."""
+        t = time.perf_counter()
+        poses = self.graph.optimize(self.milestones.poses)
+        self.milestones.set_poses(poses)
+        self.filter.set_pose(compose(poses[m.milestone], m.registration.pose))
+        self.stats["graph adjustments"] += 1
+        self.stats["graph adjustment seconds"] += time.perf_counter() - t
+        self.view.anchors_moved(self.milestones.ids, poses)
+
+    # ---- results -----------------------------------------------------------------------------
+
+    def finish(self) -> None:
+        """Adjust the graph a last time (when loops were closed)."""
+        if self.stats["loop edges"]:
+            poses = self.graph.optimize(self.milestones.poses)
+            self.milestones.set_poses(poses)
+            self.view.anchors_moved(self.milestones.ids, poses)
+
+    def trajectory(self) -> FloatArray:
+        """Poses ``(S, 3)`` of every scan in the assembled map."""
+        return self.map.world_poses(self._poses_by_id())
+
+    def _poses_by_id(self) -> FloatArray:
+        ids = self.milestones.ids
+        out = np.zeros((int(ids.max()) + 1 if len(ids) else 0, 3))
+        out[ids] = self.milestones.poses
+        return out
+
+    @property
+    def wall_time(self) -> float:
+        return time.perf_counter() - self._started
+
+    def summary(self) -> dict[str, float | int]:
+        s = dict(self.stats)
+        s["scans"] = len(self.map)
+        s["milestones"] = len(self.milestones)
+        s["segments"] = len(self.map.segment_anchor)
+        s["bytes per scan"] = self.map.bytes_per_scan
+        return s
+

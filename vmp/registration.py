@@ -1,0 +1,146 @@
+"""Scan registration: point-to-line ICP of a live scan against a reference scan, with a fit measure.
+
+The reference (a milestone's stored scan, or a few recent scans) is prepared once: a k-d tree of
+its points and a normal per point. :func:`register` then finds the pose of the live scan in the
+reference frame, starting from a guess, and says how well it fits (residual RMS, share of points
+with a partner) and how well the fit constrains each direction (covariance). In a corridor the
+fit leaves the direction along the walls free, and the covariance says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vmp.types import FloatArray, compose, transform_points
+
+__all__ = ["Reference", "Registration", "RegistrationConfig", "register"]
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    max_iterations: int = 30
+    start_distance: float = 0.5  # correspondence gate of the first iteration (m)
+    min_distance: float = 0.08  # the gate shrinks to this (m)
+    huber: float = 0.03  # residuals beyond this get Huber-down-weighted (m)
+    tolerance: float = 1e-4  # stop when a step moves less than this (m, rad)
+    neighbours: int = 5  # reference points per normal estimate
+    max_normal_spread: float = 0.3  # neighbours farther than this do not define a normal (m)
+    covariance_scale: float = 4.0  # ICP covariances are optimistic: inflate
+    min_sigma_xy: float = 0.005  # covariance floor (m)
+    min_sigma_theta: float = 0.002  # covariance floor (rad)
+    max_sigma: float = 100.0  # cap for unconstrained directions (m or rad)
+    # A direction of translation that fewer than this share of the matched points' normals
+    # face is degenerate (a corridor's axis): the fit says nothing there.
+    degenerate_share: float = 0.1
+
+
+@dataclass(frozen=True)
+class Registration:
+    """The pose of a live scan in a reference frame, and how much to trust it."""
+
+    pose: FloatArray  # (3,) live scanner pose in the reference frame
+    rms: float  # RMS of the point-to-line residuals of matched points (m)
+    inliers: float  # share of live points matched within the final gate
+    covariance: FloatArray  # (3, 3)
+    iterations: int
+    converged: bool
+
+
+class Reference:
+    """Reference points ``(N, 2)`` with a k-d tree and per-point normals, built once."""
+
+    def __init__(self, points: FloatArray, config: RegistrationConfig | None = None) -> None:
+        self.config = config or RegistrationConfig()
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
+            raise ValueError(f"a reference needs at least 3 points (N, 2), got {pts.shape}")
+        self.points = pts
+        self.tree = cKDTree(pts)
+        k = min(self.config.neighbours, len(pts))
+        dist, idx = self.tree.query(pts, k=k)
+        nb = pts[idx]  # (N, k, 2)
+        ok = dist <= self.config.max_normal_spread
+        w = ok.astype(np.float64)
+        cnt = w.sum(axis=1)
+        mean = (nb * w[..., None]).sum(axis=1) / cnt[:, None]
+        d = (nb - mean[:, None, :]) * w[..., None]
+        sxx = (d[..., 0] ** 2).sum(axis=1)
+        syy = (d[..., 1] ** 2).sum(axis=1)
+        sxy = (d[..., 0] * d[..., 1]).sum(axis=1)
+        # Direction of the line through the neighbours: the major axis of their scatter.
+        angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+        self.normals = np.stack([-np.sin(angle), np.cos(angle)], axis=-1)
+        # Planarity: how line-like the neighbourhood is; isolated points get no weight.
+        tr = sxx + syy
+        det = sxx * syy - sxy**2
+        disc = np.sqrt(np.maximum(tr**2 / 4 - det, 0.0))
+        minor = tr / 2 - disc
+        major = tr / 2 + disc
+        self.valid = (cnt >= 3) & (minor <= 0.1 * np.maximum(major, 1e-12))
+
+
+def register(reference: Reference, points: FloatArray, initial: FloatArray,
+             config: RegistrationConfig | None = None) -> Registration:
+    """Point-to-line ICP of ``points`` ``(M, 2)`` (live scanner frame) onto the reference."""
+    c = config or reference.config
+    pts = np.asarray(points, dtype=np.float64)
+    pose = np.asarray(initial, dtype=np.float64).copy()
+    gate = c.start_distance
+    converged = False
+    it = 0
+    H = np.zeros((3, 3))
+    rms = np.inf
+    inliers = 0.0
+    wsum = 0.0
+    for it in range(1, c.max_iterations + 1):  # noqa: B007 - a few iterations, each vectorised
+        q = transform_points(pose, pts)
+        dist, idx = reference.tree.query(q, distance_upper_bound=gate)
+        matched = np.isfinite(dist)
+        matched[matched] &= reference.valid[idx[matched]]
+        if matched.sum() < 6:
+            break
+        qm = q[matched]
+        n = reference.normals[idx[matched]]
+        r = reference.points[idx[matched]]
+        e = np.einsum("ij,ij->i", n, qm - r)
+        a = np.abs(e)
+        w = np.where(a <= c.huber, 1.0, c.huber / np.maximum(a, 1e-12))
+        J = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * qm[:, 0] - n[:, 0] * qm[:, 1]])
+        Jw = J * w[:, None]
+        H = Jw.T @ J
+        wsum = float(w.sum())
+        g = Jw.T @ e
+        try:
+            delta = -np.linalg.solve(H + np.eye(3) * 1e-9, g)
+        except np.linalg.LinAlgError:
+            break
+        pose = compose(delta, pose)
+        rms = float(np.sqrt(np.sum(w * e * e) / np.sum(w)))
+        inliers = float(matched.mean())
+        gate = max(c.min_distance, min(gate, 4.0 * rms + 0.02))
+        if np.abs(delta).max() < c.tolerance:
+            converged = True
+            break
+    return Registration(pose=pose, rms=rms, inliers=inliers,
+                        covariance=_covariance(H, wsum, rms, c), iterations=it,
+                        converged=converged)
+
+
+def _covariance(H: FloatArray, wsum: float, rms: float, c: RegistrationConfig) -> FloatArray:
+    """``s^2 H^-1``, with degenerate and unconstrained directions opened up, and a floor."""
+    big = c.max_sigma**2
+    if not np.isfinite(rms) or wsum <= 0:
+        return np.diag([big, big, big])
+    sigma2 = max(rms, c.min_sigma_xy) ** 2 * c.covariance_scale
+    vals, vecs = np.linalg.eigh(H)
+    inv = np.where(vals > sigma2 / big, 1.0 / np.maximum(vals, 1e-300), big / sigma2)
+    cov = sigma2 * (vecs * inv) @ vecs.T
+    # Translation directions few normals face (the normals' scatter is H's xy block / wsum).
+    tv, tvec = np.linalg.eigh(H[:2, :2] / wsum)
+    for share, v in zip(tv, tvec.T, strict=True):  # two directions
+        if share < c.degenerate_share:
+            cov[:2, :2] += big * np.outer(v, v)
+    return cov + np.diag([c.min_sigma_xy**2, c.min_sigma_xy**2, c.min_sigma_theta**2])
