@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from milestones.manager import ManagerConfig, MilestoneManager
-from vmp.fusion import CHI2_3DOF_99, MotionNoise, PoseFilter
+from vmp.fusion import CHI2_3DOF_99, MotionNoise, PoseFilter, pose_residual
 from vmp.pose_graph import PoseGraph
 from vmp.registration import Reference, Registration, RegistrationConfig, register
 from vmp.scan_odometry import ScanOdometry, ScanOdometryConfig, motion_covariance
@@ -104,6 +104,7 @@ class Pipeline:
         self._pending: FloatArray | None = None  # pose before this scan's correction
         self._anchor_reg: Registration | None = None  # this scan's accepted anchor match
         self._abs_cov: list[FloatArray] = []  # per milestone: covariance in the map frame
+        self._q_since = np.zeros((3, 3))  # motion noise since the last anchor correction
         self.scan_odometry = ScanOdometry(self.config.scan_odometry, self.config.registration,
                                           self.config.motion)
         self._started = time.perf_counter()
@@ -127,6 +128,10 @@ class Pipeline:
             wheel = relative(self._last_odom, odom) if frame.odom is not None else np.zeros(3)
             u, q = self.scan_odometry.increment(frame.points(), wheel)
             self.filter.predict(u, q)
+            th = self.filter.pose[2]
+            G = np.array([[math.cos(th), -math.sin(th), 0.0], [math.sin(th), math.cos(th), 0.0],
+                          [0.0, 0.0, 1.0]])
+            self._q_since = self._q_since + G @ q @ G.T
         self._last_odom = odom
         self._pending = None
         self._anchor_reg = None
@@ -162,11 +167,17 @@ class Pipeline:
         rot[:2, :2] = [[math.cos(ms_pose[2]), -math.sin(ms_pose[2])],
                        [math.sin(ms_pose[2]), math.cos(ms_pose[2])]]
         R = rot @ reg.covariance @ rot.T
-        spread = R
-        if source == "signature":
+        if source == "anchor":
+            # Only the motion since the last anchor correction may separate prediction and
+            # match, so a registration that drags the robot elsewhere (say, towards a person
+            # walking along with it) fails the gate.
+            spread = R + self._q_since
+        else:
             # A return to an old milestone disagrees by the drift of both chains since.
-            spread = R + self._robot_cov_via_anchor() + self._abs_cov[mid]
-        d2 = self.filter.mahalanobis2(z, spread)
+            spread = R + self.filter.covariance + self._robot_cov_via_anchor() \
+                + self._abs_cov[mid]
+        y = pose_residual(z, x)
+        d2 = float(y @ np.linalg.solve(spread, y))
         reason = ""
         if not np.isfinite(reg.rms) or reg.rms > c.max_rms or reg.inliers < c.min_inliers:
             reason = "poor fit"
@@ -188,6 +199,7 @@ class Pipeline:
         self._pending = self.filter.pose.copy()
         self.filter.update(anchor[0].z, anchor[0].R)
         self._anchor_reg = anchor[0].registration
+        self._q_since = np.zeros((3, 3))
 
     def insert(self, frame: ScanFrame, matches: list[Match]) -> None:
         x = self.filter.pose
@@ -214,11 +226,12 @@ class Pipeline:
                                            frame.angle_increment, frame.max_range, frame.stamp)
             if new is not None:
                 self.stats["milestones recorded"] += 1
+                placed = relative(self.milestones.pose(self.anchor), self.filter.pose)
                 rel, cov = self._milestone_edge(self.anchor, new, self._robot_in_anchor())
                 self.graph.add(self.anchor, new, rel, cov, "path")
                 self._abs_cov.append(self._compound_cov(self.anchor, rel, cov))
                 self.view.milestone(new, self.milestones.pose(new))
-                self._start_segment(new, handover=rel)
+                self._start_segment(new, handover=placed)
 
     def show(self, frame: ScanFrame, matches: list[Match]) -> None:
         self.view.scan(len(self.map) - 1, frame.stamp, self.filter.pose, self._last_odom,
@@ -303,33 +316,35 @@ class Pipeline:
         if best is None:
             return
         m = best[0]
+        anchor_pose = self.milestones.pose(self.anchor).copy()
+        placed = relative(anchor_pose, self.filter.pose)  # where this scan would have gone
         rel_a, cov_a = self._robot_in_anchor()
         z, cov = self._milestone_edge(self.anchor, m.milestone,
                                       (compose(rel_a, inverse(m.registration.pose)),
                                        cov_a + m.registration.covariance))
-        # Re-localise on the milestone we are handing over to (degenerate directions of its
+        # Re-localise on the milestone we hand over to (degenerate directions of its
         # registration carry a huge covariance, so the filter keeps its own estimate there).
-        self._pending = self.filter.pose.copy() if self._pending is None else self._pending
         self.filter.update(m.z, m.R)
-        x = self.filter.pose
+        self._pending = None  # the scan goes into the new segment where the filter now is
+        target = self.milestones.pose(m.milestone)
+        handover = compose(placed, inverse(relative(target, self.filter.pose)))
         sequential = abs(m.milestone - self.anchor) == 1
         edge = self.graph.add(self.anchor, m.milestone, z, cov, "path" if sequential else "loop")
         self.stats["anchor switches"] += 1
-        old_anchor_pose = self.milestones.pose(self.anchor).copy()
-        robot_in_old = relative(old_anchor_pose, x)
-        self._start_segment(m.milestone, handover=z)
+        self._start_segment(m.milestone, handover=handover)
         if edge.kind == "loop":
             self.stats["loop edges"] += 1
             e = self.graph.error(self.milestones.poses, edge)
             if float(e @ edge.information @ e) > self.config.loop_chi2:
-                self._adjust(robot_in_old, old_anchor_pose, m)
+                self._adjust()
 
-    def _adjust(self, robot_in_old: FloatArray, old_anchor_pose: FloatArray, m: Match) -> None:
-        """Adjust the milestone graph; the robot moves with its new anchor."""
+    def _adjust(self) -> None:
+        """Adjust the milestone graph; the robot moves with its anchor."""
         t = time.perf_counter()
+        robot_in_anchor = relative(self.milestones.pose(self.anchor), self.filter.pose)
         poses = self.graph.optimize(self.milestones.poses)
         self.milestones.set_poses(poses)
-        self.filter.set_pose(compose(poses[m.milestone], m.registration.pose))
+        self.filter.set_pose(compose(poses[self.anchor], robot_in_anchor))
         self.stats["graph adjustments"] += 1
         self.stats["graph adjustment seconds"] += time.perf_counter() - t
         self.view.anchors_moved(self.milestones.ids, poses)

@@ -32,9 +32,11 @@ class RegistrationConfig:
     min_sigma_xy: float = 0.005  # covariance floor (m)
     min_sigma_theta: float = 0.002  # covariance floor (rad)
     max_sigma: float = 100.0  # cap for unconstrained directions (m or rad)
-    # A direction of translation that fewer than this share of the matched points' normals
-    # face is degenerate (a corridor's axis): the fit says nothing there.
-    degenerate_share: float = 0.1
+    # A direction of translation that few matched points' normals face (a corridor's axis) is
+    # degenerate, the fit says nothing there: fewer than this share of the points' summed
+    # squared cosines, or fewer than ``min_constraint`` of them.
+    degenerate_share: float = 0.05
+    min_constraint: float = 8.0
 
 
 @dataclass(frozen=True)
@@ -138,9 +140,9 @@ def _covariance(H: FloatArray, wsum: float, rms: float, c: RegistrationConfig) -
     vals, vecs = np.linalg.eigh(H)
     inv = np.where(vals > sigma2 / big, 1.0 / np.maximum(vals, 1e-300), big / sigma2)
     cov = sigma2 * (vecs * inv) @ vecs.T
-    # Translation directions few normals face (the normals' scatter is H's xy block / wsum).
-    tv, tvec = np.linalg.eigh(H[:2, :2] / wsum)
-    for share, v in zip(tv, tvec.T, strict=True):  # two directions
-        if share < c.degenerate_share:
+    # Translation directions few normals face (H's xy block sums n n^T over the points).
+    tv, tvec = np.linalg.eigh(H[:2, :2])
+    for amount, v in zip(tv, tvec.T, strict=True):  # two directions
+        if amount < c.min_constraint or amount < c.degenerate_share * wsum:
             cov[:2, :2] += big * np.outer(v, v)
     return cov + np.diag([c.min_sigma_xy**2, c.min_sigma_xy**2, c.min_sigma_theta**2])

@@ -29,6 +29,9 @@ class ScanOdometryConfig:
     max_rms: float = 0.05  # m; a worse fit falls back to wheel odometry
     min_inliers: float = 0.5
     min_points: int = 20
+    # A registration whose increment disagrees with the wheels beyond this (squared
+    # Mahalanobis, 3 dof 99 %) is not trusted: something moved with the robot.
+    gate: float = 11.34
 
 
 def motion_covariance(u: FloatArray, noise: MotionNoise) -> FloatArray:
@@ -65,18 +68,19 @@ class ScanOdometry:
             return wheel, q_wheel
         guess = compose(self._rel, wheel)
         reg = register(self._key, points, guess, self.registration)
-        if not np.isfinite(reg.rms) or reg.rms > c.max_rms or reg.inliers < c.min_inliers:
+        u_reg = relative(self._rel, reg.pose)
+        d = u_reg - wheel
+        d[2] = (d[2] + math.pi) % (2 * math.pi) - math.pi
+        fits = np.isfinite(reg.rms) and reg.rms <= c.max_rms and reg.inliers >= c.min_inliers
+        if not fits or float(d @ np.linalg.solve(q_wheel + reg.covariance, d)) > c.gate:
             self.fallbacks += 1
             u, q = wheel, q_wheel
         else:
             self.refined += 1
-            u_reg = relative(self._rel, reg.pose)
             # Fuse the two increments by information; registration constrains what it sees.
             info_w = np.linalg.inv(q_wheel)
             info_r = np.linalg.inv(reg.covariance)
             q = np.linalg.inv(info_w + info_r)
-            d = u_reg - wheel
-            d[2] = (d[2] + math.pi) % (2 * math.pi) - math.pi
             u = wheel + q @ (info_r @ d)
         self._rel = compose(self._rel, u)
         if (np.hypot(self._rel[0], self._rel[1]) >= c.keyframe_distance
