@@ -32,6 +32,11 @@ class ScanOdometryConfig:
     # A registration whose increment disagrees with the wheels beyond this (squared
     # Mahalanobis, 3 dof 99 %) is not trusted: something moved with the robot.
     gate: float = 11.34
+    # Wheel odometry is calibrated on the way: its distance scale is learned from increments
+    # where registration pins down the motion along the direction of travel.
+    calibrate: bool = True
+    calibration_sigma: float = 0.008  # registration sigma along travel needed to learn (m)
+    calibration_memory: float = 50.0  # metres of travel the scale estimate averages over
 
 
 def motion_covariance(u: FloatArray, noise: MotionNoise) -> FloatArray:
@@ -52,6 +57,15 @@ class ScanOdometry:
         self._rel = np.zeros(3)  # the last scan's pose in the keyframe's frame
         self.refined = 0
         self.fallbacks = 0
+        self._dist_wheel = 0.0  # travel behind the scale estimate, wheels and registration
+        self._dist_reg = 0.0
+
+    @property
+    def scale(self) -> float:
+        """The learned factor from wheel distance to true distance (1 until learned)."""
+        if self._dist_wheel < 2.0:
+            return 1.0
+        return self._dist_reg / self._dist_wheel
 
     def increment(self, points: FloatArray, wheel: FloatArray) -> tuple[FloatArray, FloatArray]:
         """The increment since the last scan (its frame) and its covariance.
@@ -60,6 +74,7 @@ class ScanOdometry:
         odometry increment (zeros when there is none).
         """
         c = self.config
+        wheel = np.array([wheel[0] * self.scale, wheel[1] * self.scale, wheel[2]])
         q_wheel = motion_covariance(wheel, self.noise)
         if not c.enabled or len(points) < c.min_points:
             return wheel, q_wheel
@@ -77,6 +92,7 @@ class ScanOdometry:
             u, q = wheel, q_wheel
         else:
             self.refined += 1
+            self._learn_scale(wheel, u_reg, reg.covariance)
             # Fuse the two increments by information; registration constrains what it sees.
             info_w = np.linalg.inv(q_wheel)
             info_r = np.linalg.inv(reg.covariance)
@@ -87,6 +103,19 @@ class ScanOdometry:
                 or abs(self._rel[2]) >= c.keyframe_turn):
             self._new_key(points)
         return u, q
+
+    def _learn_scale(self, wheel: FloatArray, u_reg: FloatArray, cov: FloatArray) -> None:
+        """Accumulate wheel and registered distance where registration sees along travel."""
+        dist = float(np.hypot(wheel[0], wheel[1]))
+        if not self.config.calibrate or dist < 0.01:
+            return
+        along = wheel[:2] / dist
+        if float(along @ cov[:2, :2] @ along) > self.config.calibration_sigma**2:
+            return
+        raw = dist / self.scale  # what the wheels said before scaling
+        forget = max(0.0, 1.0 - dist / self.config.calibration_memory)
+        self._dist_wheel = self._dist_wheel * forget + raw
+        self._dist_reg = self._dist_reg * forget + float(along @ u_reg[:2])
 
     def _new_key(self, points: FloatArray) -> None:
         try:
