@@ -60,6 +60,9 @@ def save_milestones(path: str | os.PathLike[str], manager: MilestoneManager) -> 
                      **arrays)
             f.flush()
             os.fsync(f.fileno())
+        umask = os.umask(0o022)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; give the usual mode
         os.replace(tmp, target)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

@@ -15,6 +15,10 @@ from vmp.errors import InputError
 
 EXAMPLES = """\
 examples:
+  vmp map office                          map the default scenario; results/latest holds it all
+  vmp map run.clf --out results           map a CARMEN log
+  vmp export results/latest --grid map.yaml --resolution 0.05
+  vmp evaluate results/latest --ground-truth results/latest/ground_truth.tum
   vmp simulate office                     write office.clf (CARMEN log) and office.tum (truth)
   vmp simulate warehouse --out runs/w.clf --laps 3 --seed 11
   vmp simulate my_building.yaml --out b.clf
@@ -83,6 +87,68 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("-q", "--quiet", action="store_true", help="no progress, no summary")
     sim.set_defaults(func=cmd_simulate)
 
+    mp = sub.add_parser(
+        "map",
+        help="build a map and a corrected trajectory from a scenario or a recording",
+        description="Build a vector map with laser milestones from a built-in scenario, a "
+        "scenario file or a CARMEN log. Writes a dated results folder (and a 'latest' link): "
+        "trajectory (TUM), the map, milestones, occupancy grid, contours, milestone graph, "
+        "the configuration used and a metrics summary, also printed at the end.",
+        epilog="examples:\n  vmp map office\n  vmp map warehouse --out /tmp/runs\n"
+        "  vmp map corridor --no-milestones          # odometry and scan matching only\n"
+        "  vmp map office --config my.yaml           # see results/latest/config.yaml\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    mp.add_argument("source", help="scenario name, scenario YAML, or CARMEN log (.clf, .log, "
+                    "optionally .gz)")
+    mp.add_argument("--out", type=Path, default=Path("results"),
+                    help="folder that receives the dated results folder (default: results)")
+    mp.add_argument("--config", type=Path, help="mapping configuration YAML (default: built-in)")
+    mp.add_argument("--method", choices=["ed", "cca", "dct", "hwt"],
+                    help="signature comparison of the milestones (default: cca)")
+    mp.add_argument("--no-milestones", action="store_true",
+                    help="no milestones: odometry refined by scan matching only")
+    mp.add_argument("--no-scan-odometry", action="store_true",
+                    help="predict from wheel odometry alone, without scan registration")
+    mp.add_argument("--resolution", type=float, default=0.05,
+                    help="occupancy grid cell size in metres (default: 0.05)")
+    mp.add_argument("--scans", type=_positive_int, help="stop after this many scans")
+    mp.add_argument("--seed", type=_nonneg_int, help="simulation seed (scenarios only)")
+    mp.add_argument("-q", "--quiet", action="store_true", help="no progress, no table")
+    mp.set_defaults(func=cmd_map)
+
+    ex = sub.add_parser(
+        "export", help="write a map as an occupancy grid, PNG, .npy, contours or graph",
+        description="Export a result (a results folder or a .vmpmap file): an occupancy grid "
+        "in the ROS map_server form (PGM + YAML), a PNG, a NumPy array, the contours of free "
+        "space as GeoJSON and the milestone graph as JSON.",
+        epilog="examples:\n  vmp export results/latest --grid map.yaml --resolution 0.05\n"
+        "  vmp export results/latest/map.vmpmap --png map.png --contours free.geojson\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ex.add_argument("result", type=Path, help="results folder or .vmpmap file")
+    ex.add_argument("--grid", type=Path, metavar="YAML", help="map_server YAML (+ PGM beside)")
+    ex.add_argument("--resolution", type=float, default=0.05, help="metres per cell")
+    ex.add_argument("--png", type=Path, help="greyscale PNG of the grid")
+    ex.add_argument("--npy", type=Path, help="the grid as a NumPy array (0, 205, 254)")
+    ex.add_argument("--contours", type=Path, metavar="GEOJSON", help="boundary of free space")
+    ex.add_argument("--graph", type=Path, metavar="JSON", help="milestone graph")
+    ex.set_defaults(func=cmd_export)
+
+    ev = sub.add_parser(
+        "evaluate", help="score a trajectory: ATE, RPE, Kuemmerle relations",
+        description="Score a result's trajectory (or any TUM file) against ground truth (ATE "
+        "after SE(2) alignment, and RPE, as evo computes them) or against a relations file "
+        "(Kuemmerle et al. 2009: mean and std of translational and rotational error).",
+        epilog="examples:\n  vmp evaluate results/latest --ground-truth office.tum\n"
+        "  vmp evaluate results/latest --relations ../shared/data/intel/intel.relations\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ev.add_argument("result", type=Path, help="results folder or TUM trajectory")
+    ev.add_argument("--ground-truth", type=Path, metavar="TUM")
+    ev.add_argument("--relations", type=Path, metavar="FILE")
+    ev.add_argument("--delta", type=_positive_int, default=1,
+                    help="RPE frame distance (default 1)")
+    ev.set_defaults(func=cmd_evaluate)
+
     sc = sub.add_parser("scenarios", help="list the built-in scenarios",
                         description="List the built-in scenarios with their descriptions.")
     sc.set_defaults(func=cmd_scenarios)
@@ -128,6 +194,167 @@ def cmd_simulate(args: argparse.Namespace) -> int:
               f"odometry off by {drift:.2f} m at the end ({progress.rate:,.0f} scans/s)")
         print(f"  log:          {out}")
         print(f"  ground truth: {gt}")
+    return 0
+
+
+def _open_source(text: str, seed: int | None, scans: int | None):
+    """Frames, beam geometry, their count (or None) and a name for a map source."""
+    import itertools
+
+    from drivers.carmen import read_carmen
+    from drivers.scenario import builtin_scenarios, load_scenario
+    from drivers.simulator import Simulator
+    from vmp.vector_map import BeamGeometry
+
+    path = Path(text)
+    is_log = path.suffix in (".clf", ".log", ".gz", ".txt") or (
+        path.is_file() and path.suffix not in (".yaml", ".yml"))
+    if not is_log or text in builtin_scenarios():
+        scenario = load_scenario(text)
+        try:
+            sim = Simulator(scenario, seed=seed, max_scans=scans)
+        except ValueError as exc:
+            raise InputError(str(exc)) from exc
+        s = sim.sensor
+        geom = BeamGeometry(s.beams, s.angle_min, s.angle_increment, s.max_range)
+        return iter(sim), geom, len(sim), scenario.name
+    if seed is not None:
+        raise InputError("--seed applies to scenarios, not to recordings")
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    frames = read_carmen(path)
+    first = next(frames, None)
+    if first is None:
+        raise InputError(f"{path}: no laser scans (FLASER or ROBOTLASER1 lines) in this file")
+    geom = BeamGeometry(first.num_beams, first.angle_min, first.angle_increment,
+                        first.max_range)
+    stream = itertools.chain([first], frames)
+    if scans is not None:
+        stream = itertools.islice(stream, scans)
+    name = path.name.split(".")[0]
+    return stream, geom, scans, name
+
+
+def cmd_map(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from vmp.config import load_config
+    from vmp.pipeline import Pipeline, PipelineConfig
+    from vmp.progress import Progress
+    from vmp.results import format_metrics, new_results_dir, write_results
+
+    config = load_config(args.config) if args.config else PipelineConfig()
+    if args.method:
+        config = dataclasses.replace(
+            config, milestones=dataclasses.replace(config.milestones, method=args.method))
+    if args.no_milestones:
+        config = dataclasses.replace(config, use_milestones=False)
+    if args.no_scan_odometry:
+        config = dataclasses.replace(config, scan_odometry=dataclasses.replace(
+            config.scan_odometry, enabled=False))
+    if not (args.resolution > 0):
+        raise InputError(f"--resolution must be positive, got {args.resolution}")
+    frames, geom, total, name = _open_source(args.source, args.seed, args.scans)
+    pipeline = Pipeline(geom, config)
+    progress = Progress(total, f"mapping {name}", enabled=False if args.quiet else None)
+    stamps = []
+    for frame in progress.wrap(frames):
+        if frame.num_beams != geom.num_beams:
+            raise InputError(f"scan {frame.index}: {frame.num_beams} beams, the first scan "
+                             f"had {geom.num_beams}")
+        pipeline.step(frame)
+        stamps.append(frame.stamp)
+    if not stamps:
+        raise InputError(f"{args.source}: no scans to map")
+    pipeline.finish()
+    out = new_results_dir(args.out, name)
+    metrics = write_results(out, pipeline, np.array(stamps), args.source, args.resolution)
+    if not args.quiet:
+        print(format_metrics(metrics))
+        print(f"\nresults in {out} (also {args.out / 'latest'}):")
+        print(f"  trajectory  {out / 'trajectory.tum'}")
+        print(f"  map         {out / 'map.vmpmap'}")
+        print(f"  grid        {out / 'grid.yaml'} (+ grid.pgm, grid.png, grid.npy)")
+        print(f"  contours    {out / 'contours.geojson'};  graph {out / 'graph.json'}")
+    return 0
+
+
+def _map_file(result: Path) -> Path:
+    path = result / "map.vmpmap" if result.is_dir() else result
+    if not path.is_file():
+        raise InputError(f"{result}: neither a results folder with map.vmpmap nor a map file")
+    return path
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from vmp.export import (
+        free_space_contours,
+        occupancy_grid,
+        write_geojson,
+        write_graph_json,
+        write_png,
+        write_ros_map,
+    )
+    from vmp.fileio import atomic_write
+    from vmp.mapfile import load_map
+
+    if not any((args.grid, args.png, args.npy, args.contours, args.graph)):
+        raise InputError("nothing to export: give --grid, --png, --npy, --contours or --graph")
+    data = load_map(_map_file(args.result))
+    poses = data.trajectory
+    polys = data.map.polygons(poses)
+    if args.grid or args.png or args.npy:
+        grid = occupancy_grid(polys, data.map.world_points(poses), args.resolution)
+        if args.grid:
+            pgm = write_ros_map(args.grid, grid)
+            print(f"grid: {args.grid} + {pgm} ({grid.shape[1]} x {grid.shape[0]} cells of "
+                  f"{grid.resolution} m)")
+        if args.png:
+            write_png(args.png, grid)
+            print(f"png: {args.png}")
+        if args.npy:
+            with atomic_write(args.npy, "wb") as f:
+                np.save(f, grid.cells, allow_pickle=False)
+            print(f"npy: {args.npy}")
+    if args.contours:
+        geom = free_space_contours(polys)
+        write_geojson(args.contours, geom, {"what": "boundary of free space"})
+        print(f"contours: {args.contours} ({geom.area:.1f} m2 of free space)")
+    if args.graph:
+        edges = [{"from": e.i, "to": e.j, "kind": e.kind, "x": float(e.z[0]),
+                  "y": float(e.z[1]), "theta": float(e.z[2])} for e in data.graph.edges]
+        ms = data.milestones
+        write_graph_json(args.graph, ms.ids, ms.poses, ms.stamps, edges)
+        print(f"graph: {args.graph} ({len(ms)} milestones, {len(edges)} edges)")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    import math
+
+    from vmp.evaluate import ate, read_relations, relation_error, rpe
+    from vmp.tum import read_tum
+
+    if not args.ground_truth and not args.relations:
+        raise InputError("give --ground-truth TUM and/or --relations FILE")
+    traj = args.result / "trajectory.tum" if args.result.is_dir() else args.result
+    if not traj.is_file():
+        raise InputError(f"{args.result}: no trajectory (expected a TUM file or a results "
+                         "folder with trajectory.tum)")
+    stamps, poses = read_tum(traj)
+    if args.ground_truth:
+        gs, gp = read_tum(args.ground_truth)
+        a = ate(stamps, poses, gs, gp)
+        r = rpe(stamps, poses, gs, gp, delta=args.delta)
+        print(f"ATE  rmse {a.rmse:.4f} m  mean {a.mean:.4f} m  max {a.max:.4f} m  "
+              f"({a.pairs} poses, SE(2) aligned)")
+        print(f"RPE  trans rmse {r.trans_rmse:.4f} m  rot rmse {math.degrees(r.rot_rmse):.4f} "
+              f"deg  (delta {r.delta} frames, {r.pairs} pairs)")
+    if args.relations:
+        rel = relation_error(stamps, poses, read_relations(args.relations))
+        print(f"relations  trans {rel.trans_mean:.4f} +- {rel.trans_std:.4f} m  rot "
+              f"{math.degrees(rel.rot_mean):.3f} +- {math.degrees(rel.rot_std):.3f} deg  "
+              f"({rel.used} of {rel.total} relations)")
     return 0
 
 

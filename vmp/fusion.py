@@ -8,6 +8,7 @@ theta is wrapped again after every update.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,10 +26,10 @@ class MotionNoise:
     """Odometry noise: variance grows linearly with distance and turn (sqrt growth of sigma)."""
 
     trans_per_m: float = 0.05  # sigma of translation error accumulated over 1 m (m)
-    rot_per_m: float = np.radians(1.0)  # sigma of heading error per metre driven (rad)
+    rot_per_m: float = math.radians(1.0)  # sigma of heading error per metre driven (rad)
     rot_per_rad: float = 0.05  # sigma of heading error per radian turned (rad)
     floor_xy: float = 0.001  # per step (m)
-    floor_theta: float = np.radians(0.05)  # per step (rad)
+    floor_theta: float = math.radians(0.05)  # per step (rad)
 
 
 def pose_residual(a: FloatArray, b: FloatArray) -> FloatArray:

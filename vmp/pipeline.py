@@ -59,7 +59,8 @@ class PipelineConfig:
     min_inliers: float = 0.5  # share of live points that must find a partner
     max_ratio: float = 0.9  # signature score / best rival's above which a match is ambiguous
     gate: float = CHI2_3DOF_99  # Mahalanobis gate of a pose measurement (3 dof, 99 %)
-    candidates: int = 2  # signature candidates registered per scan, besides the anchor
+    candidates: int = 2  # signature candidates registered per query, besides the anchor
+    query_every: int = 2  # scans between signature queries (the anchor is matched every scan)
     switch_margin: float = 0.3  # switch anchor when another milestone is this much nearer (m)
     loop_chi2: float = 1.0  # adjust the graph when a new loop edge disagrees this much
     min_points: int = 20  # fewer returns than this: the scan is not matched
@@ -146,11 +147,14 @@ class Pipeline:
             return []
         x, P = self.filter.pose, self.filter.covariance
         targets: list[tuple[int, str, float, float | None]] = [(self.anchor, "anchor", 0.0, None)]
-        for cand in self.milestones.query(frame.ranges, frame.angle_min, frame.angle_increment,
-                                          frame.max_range, predicted_pose=x, covariance=P,
-                                          max_candidates=c.candidates + 1):
-            if cand.id != self.anchor and len(targets) <= c.candidates:
-                targets.append((cand.id, "signature", cand.ratio, cand.heading_offset))
+        if len(self.map) % c.query_every == 0:
+            gate_cov = P
+            for cand in self.milestones.query(frame.ranges, frame.angle_min,
+                                              frame.angle_increment, frame.max_range,
+                                              predicted_pose=x, covariance=gate_cov,
+                                              max_candidates=c.candidates + 1):
+                if cand.id != self.anchor and len(targets) <= c.candidates:
+                    targets.append((cand.id, "signature", cand.ratio, cand.heading_offset))
         return [self._register(mid, source, ratio, offset, points, x, P)
                 for mid, source, ratio, offset in targets]
 

@@ -37,10 +37,17 @@ class PoseGraph:
         self.edges: list[Edge] = []
 
     def add(self, i: int, j: int, z: FloatArray, covariance: FloatArray, kind: str) -> Edge:
-        cov = np.asarray(covariance, dtype=np.float64)
-        info = np.linalg.inv(cov + np.eye(3) * 1e-12)
+        """Add an edge measured with ``covariance``."""
+        info = np.linalg.inv(np.asarray(covariance, dtype=np.float64) + np.eye(3) * 1e-12)
+        return self.add_information(i, j, z, 0.5 * (info + info.T), kind)
+
+    def add_information(self, i: int, j: int, z: FloatArray, information: FloatArray,
+                        kind: str) -> Edge:
+        """Add an edge given its information matrix (as stored in a map file)."""
+        if kind not in ("path", "loop"):
+            raise ValueError(f"edge kind must be path or loop, got {kind!r}")
         edge = Edge(int(i), int(j), np.asarray(z, dtype=np.float64).copy(),
-                    0.5 * (info + info.T), kind)
+                    np.asarray(information, dtype=np.float64).copy(), kind)
         self.edges.append(edge)
         return edge
 

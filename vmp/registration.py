@@ -9,12 +9,13 @@ fit leaves the direction along the walls free, and the covariance says so.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vmp.types import FloatArray, compose, transform_points
+from vmp.types import FloatArray
 
 __all__ = ["Reference", "Registration", "RegistrationConfig", "register"]
 
@@ -25,7 +26,7 @@ class RegistrationConfig:
     start_distance: float = 0.5  # correspondence gate of the first iteration (m)
     min_distance: float = 0.08  # the gate shrinks to this (m)
     huber: float = 0.03  # residuals beyond this get Huber-down-weighted (m)
-    tolerance: float = 1e-4  # stop when a step moves less than this (m, rad)
+    tolerance: float = 5e-4  # stop when a step moves less than this (m, rad)
     neighbours: int = 5  # reference points per normal estimate
     max_normal_spread: float = 0.3  # neighbours farther than this do not define a normal (m)
     covariance_scale: float = 4.0  # ICP covariances are optimistic: inflate
@@ -97,20 +98,29 @@ def register(reference: Reference, points: FloatArray, initial: FloatArray,
     rms = np.inf
     inliers = 0.0
     wsum = 0.0
+    px, py = pts[:, 0], pts[:, 1]
     for it in range(1, c.max_iterations + 1):  # noqa: B007 - a few iterations, each vectorised
-        q = transform_points(pose, pts)
+        cth, sth = math.cos(pose[2]), math.sin(pose[2])
+        q = np.empty_like(pts)
+        q[:, 0] = pose[0] + cth * px - sth * py
+        q[:, 1] = pose[1] + sth * px + cth * py
         dist, idx = reference.tree.query(q, distance_upper_bound=gate)
-        matched = np.isfinite(dist)
+        matched = dist < np.inf
         matched[matched] &= reference.valid[idx[matched]]
-        if matched.sum() < 6:
+        n_matched = int(matched.sum())
+        if n_matched < 6:
             break
         qm = q[matched]
-        n = reference.normals[idx[matched]]
-        r = reference.points[idx[matched]]
-        e = np.einsum("ij,ij->i", n, qm - r)
+        im = idx[matched]
+        n = reference.normals[im]
+        d = qm - reference.points[im]
+        e = n[:, 0] * d[:, 0] + n[:, 1] * d[:, 1]
         a = np.abs(e)
         w = np.where(a <= c.huber, 1.0, c.huber / np.maximum(a, 1e-12))
-        J = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * qm[:, 0] - n[:, 0] * qm[:, 1]])
+        J = np.empty((n_matched, 3))
+        J[:, 0] = n[:, 0]
+        J[:, 1] = n[:, 1]
+        J[:, 2] = n[:, 1] * qm[:, 0] - n[:, 0] * qm[:, 1]
         Jw = J * w[:, None]
         H = Jw.T @ J
         wsum = float(w.sum())
@@ -119,11 +129,15 @@ def register(reference: Reference, points: FloatArray, initial: FloatArray,
             delta = -np.linalg.solve(H + np.eye(3) * 1e-9, g)
         except np.linalg.LinAlgError:
             break
-        pose = compose(delta, pose)
-        rms = float(np.sqrt(np.sum(w * e * e) / np.sum(w)))
-        inliers = float(matched.mean())
+        # Left-compose the step: rotate the pose about the origin, then translate.
+        cd, sd = math.cos(delta[2]), math.sin(delta[2])
+        pose = np.array([delta[0] + cd * pose[0] - sd * pose[1],
+                         delta[1] + sd * pose[0] + cd * pose[1],
+                         (pose[2] + delta[2] + math.pi) % (2 * math.pi) - math.pi])
+        rms = math.sqrt(float(w @ (e * e)) / wsum)
+        inliers = n_matched / len(pts)
         gate = max(c.min_distance, min(gate, 4.0 * rms + 0.02))
-        if np.abs(delta).max() < c.tolerance:
+        if abs(delta).max() < c.tolerance:
             converged = True
             break
     return Registration(pose=pose, rms=rms, inliers=inliers,

@@ -234,7 +234,7 @@ class VectorMap:
 
     def world_points(self, poses: FloatArray, hits_only: bool = True) -> FloatArray:
         """End points in the map frame: ``(K, 2)`` of the hits, or ``(S, N, 2)`` of all."""
-        pts = transform_points(poses[:, None, :], self.end_points.astype(np.float64))
+        pts = transform_points(poses, self.end_points.astype(np.float64))
         if hits_only:
             return pts[self.hits]
         return pts

@@ -1,0 +1,223 @@
+"""The vector map in the forms others read: occupancy grids (ROS map_server, PNG, .npy), the
+contours of free space (GeoJSON) and the milestone graph (JSON).
+
+The grid: inside any scan polygon is free, a cell with hits (seen often enough against how
+often it was seen free) is occupied, the rest unknown. Polygons are filled by a vectorised
+even-odd scan-line fill: every polygon edge crossing every pixel row becomes one entry of one
+array, and the runs between crossings are summed into the grid with a cumulative sum.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import shapely
+import yaml
+from numpy.typing import NDArray
+
+from vmp.errors import InputError
+from vmp.fileio import atomic_write
+from vmp.types import FloatArray
+
+__all__ = ["FREE", "OCCUPIED", "UNKNOWN", "Grid", "coverage", "free_space_contours",
+           "occupancy_grid", "read_ros_map", "write_graph_json", "write_png",
+           "write_ros_map"]
+
+OCCUPIED, FREE, UNKNOWN = 0, 254, 205
+
+
+@dataclass(frozen=True)
+class Grid:
+    """An occupancy grid; row 0 is the bottom (lowest y), as the map frame has it."""
+
+    cells: NDArray[np.uint8]  # (H, W) of OCCUPIED, FREE, UNKNOWN
+    resolution: float  # metres per cell
+    origin: tuple[float, float]  # map coordinates of the lower-left corner of cell (0, 0)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.cells.shape
+
+
+def coverage(polygons: FloatArray, origin: tuple[float, float], resolution: float,
+             shape: tuple[int, int]) -> NDArray[np.int32]:
+    """How many polygons cover each cell centre (even-odd rule per polygon).
+
+    ``polygons`` is ``(P, V, 2)``, each an implicitly closed ring.
+    """
+    H, W = shape
+    P, V, _ = polygons.shape
+    # Polygon vertices in pixel units; cell centres sit at integer + 0.5.
+    u = (polygons[..., 0] - origin[0]) / resolution - 0.5
+    v = (polygons[..., 1] - origin[1]) / resolution - 0.5
+    u0, v0 = u.ravel(), v.ravel()
+    u1 = np.roll(u, -1, axis=1).ravel()
+    v1 = np.roll(v, -1, axis=1).ravel()
+    poly = np.repeat(np.arange(P), V)
+    lo = np.ceil(np.minimum(v0, v1))
+    hi = np.ceil(np.maximum(v0, v1))  # rows r with min <= r < max: half-open, no double count
+    lo = np.clip(lo, 0, H).astype(np.int64)
+    hi = np.clip(hi, 0, H).astype(np.int64)
+    count = np.maximum(hi - lo, 0)
+    keep = count > 0
+    count = count[keep]
+    edge = np.repeat(np.flatnonzero(keep), count)
+    row = lo[keep].repeat(count) + (np.arange(count.sum()) - np.repeat(np.cumsum(count) - count,
+                                                                      count))
+    t = (row - v0[edge]) / (v1[edge] - v0[edge])
+    x = u0[edge] + t * (u1[edge] - u0[edge])
+    pid = poly[edge]
+    order = np.lexsort((x, row, pid))
+    x, row, pid = x[order], row[order], pid[order]
+    # Crossings come in pairs per polygon and row: fill between each pair.
+    start, stop = x[0::2], x[1::2]
+    r = row[0::2]
+    a = np.clip(np.ceil(start), 0, W).astype(np.int64)
+    b = np.clip(np.floor(stop) + 1, 0, W).astype(np.int64)
+    ok = b > a
+    acc = np.zeros((H, W + 1), dtype=np.int32)
+    np.add.at(acc, (r[ok], a[ok]), 1)
+    np.add.at(acc, (r[ok], b[ok]), -1)
+    return np.cumsum(acc, axis=1)[:, :W]
+
+
+def occupancy_grid(polygons: FloatArray, hits: FloatArray, resolution: float,
+                   margin: float = 0.5, min_hit_share: float = 0.25) -> Grid:
+    """Rasterise scan polygons ``(P, V, 2)`` and hit points ``(K, 2)`` into a grid.
+
+    A cell is occupied when its hits make at least ``min_hit_share`` of all the times it was
+    seen (hits plus polygons covering it): a person walking through leaves few hits where
+    many scans saw free space.
+    """
+    if resolution <= 0 or not math.isfinite(resolution):
+        raise InputError(f"resolution must be a positive number of metres, got {resolution}")
+    pts = polygons.reshape(-1, 2)
+    lo = np.minimum(pts.min(axis=0), hits.min(axis=0) if len(hits) else pts.min(axis=0))
+    hi = np.maximum(pts.max(axis=0), hits.max(axis=0) if len(hits) else pts.max(axis=0))
+    origin = (float(np.floor((lo[0] - margin) / resolution) * resolution),
+              float(np.floor((lo[1] - margin) / resolution) * resolution))
+    W = int(np.ceil((hi[0] + margin - origin[0]) / resolution))
+    H = int(np.ceil((hi[1] + margin - origin[1]) / resolution))
+    if H * W > 200_000_000:
+        raise InputError(f"a {W} x {H} grid is too large; use a coarser --resolution")
+    cover = coverage(polygons, origin, resolution, (H, W))
+    hit_count = np.zeros((H, W), dtype=np.int32)
+    if len(hits):
+        ix = np.floor((hits[:, 0] - origin[0]) / resolution).astype(np.int64)
+        iy = np.floor((hits[:, 1] - origin[1]) / resolution).astype(np.int64)
+        ok = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
+        hit_count = np.bincount(iy[ok] * W + ix[ok], minlength=H * W).reshape(H, W)
+    cells = np.full((H, W), UNKNOWN, dtype=np.uint8)
+    cells[cover > 0] = FREE
+    occupied = (hit_count > 0) & (hit_count >= min_hit_share * (hit_count + cover))
+    cells[occupied] = OCCUPIED
+    return Grid(cells, float(resolution), origin)
+
+
+# ---- files ----------------------------------------------------------------------------------
+
+def write_ros_map(yaml_path: str | Path, grid: Grid) -> Path:
+    """Write ``NAME.pgm`` (P5) and ``NAME.yaml`` in the form ROS map_server reads.
+
+    Rows are flipped so that image row 0 is the top of the map; ``origin`` is the map
+    position of the lower-left pixel.
+    """
+    yaml_path = Path(yaml_path)
+    if yaml_path.suffix not in (".yaml", ".yml"):
+        raise InputError(f"{yaml_path}: the grid's metadata file must end in .yaml")
+    pgm = yaml_path.with_suffix(".pgm")
+    H, W = grid.shape
+    with atomic_write(pgm, "wb") as f:
+        f.write(f"P5\n# vmp-slam occupancy grid, {grid.resolution} m/cell\n{W} {H}\n255\n"
+                .encode("ascii"))
+        f.write(np.ascontiguousarray(grid.cells[::-1]).tobytes())
+    meta = {
+        "image": pgm.name,
+        "resolution": grid.resolution,
+        "origin": [grid.origin[0], grid.origin[1], 0.0],
+        "negate": 0,
+        "occupied_thresh": 0.65,
+        "free_thresh": 0.196,
+        "mode": "trinary",
+    }
+    with atomic_write(yaml_path, "w") as f:
+        yaml.safe_dump(meta, f, sort_keys=False)
+    return pgm
+
+
+def read_ros_map(yaml_path: str | Path) -> Grid:
+    """Read a map_server map (YAML + P5 PGM) back into a :class:`Grid`."""
+    yaml_path = Path(yaml_path)
+    try:
+        meta = yaml.safe_load(yaml_path.read_text())
+        data = (yaml_path.parent / meta["image"]).read_bytes()
+    except (OSError, KeyError, TypeError, yaml.YAMLError) as exc:
+        raise InputError(f"{yaml_path}: not a readable map_server map: {exc}") from exc
+    fields: list[bytes] = []
+    pos = 0
+    while len(fields) < 4:
+        while data[pos:pos + 1].isspace():
+            pos += 1
+        if data[pos:pos + 1] == b"#":
+            pos = data.index(b"\n", pos) + 1
+            continue
+        end = pos
+        while not data[end:end + 1].isspace():
+            end += 1
+        fields.append(data[pos:end])
+        pos = end
+    if fields[0] != b"P5" or int(fields[3]) != 255:
+        raise InputError(f"{yaml_path}: {meta['image']} is not an 8-bit P5 PGM")
+    W, H = int(fields[1]), int(fields[2])
+    pixels = np.frombuffer(data[pos + 1:pos + 1 + W * H], dtype=np.uint8).reshape(H, W)
+    return Grid(pixels[::-1].copy(), float(meta["resolution"]),
+                (float(meta["origin"][0]), float(meta["origin"][1])))
+
+
+def write_png(path: str | Path, grid: Grid) -> None:
+    """The grid as an 8-bit greyscale PNG, top row first (zlib, no imaging library needed)."""
+    img = np.ascontiguousarray(grid.cells[::-1])
+    H, W = img.shape
+    raw = np.hstack([np.zeros((H, 1), dtype=np.uint8), img]).tobytes()  # filter byte 0
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return (struct.pack(">I", len(body)) + kind + body
+                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 8, 0, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
+    with atomic_write(path, "wb") as f:
+        f.write(png)
+
+
+def free_space_contours(polygons: FloatArray, grid_size: float = 0.01) -> shapely.Geometry:
+    """The union of the scan polygons (free space) as one (multi)polygon.
+
+    Snapping to ``grid_size`` keeps the union fast and robust.
+    """
+    polys = shapely.polygons(polygons)
+    polys = polys[shapely.is_valid(polys)]
+    return shapely.union_all(polys, grid_size=grid_size)
+
+
+def write_geojson(path: str | Path, geometry: shapely.Geometry, properties: dict) -> None:
+    feature = {"type": "Feature", "properties": properties,
+               "geometry": json.loads(shapely.to_geojson(geometry))}
+    with atomic_write(path, "w") as f:
+        json.dump({"type": "FeatureCollection", "features": [feature]}, f)
+
+
+def write_graph_json(path: str | Path, ids: NDArray, poses: FloatArray, stamps: FloatArray,
+                     edges: list[dict]) -> None:
+    """Milestones (nodes) and path / loop edges as JSON."""
+    nodes = [{"id": int(i), "x": float(p[0]), "y": float(p[1]), "theta": float(p[2]),
+              "stamp": float(s)} for i, p, s in zip(ids, poses, stamps, strict=True)]
+    with atomic_write(path, "w") as f:
+        json.dump({"frame": "map", "units": "m, rad", "nodes": nodes, "edges": edges}, f,
+                  indent=1)
