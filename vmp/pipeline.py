@@ -60,7 +60,7 @@ class PipelineConfig:
     max_ratio: float = 0.9  # signature score / best rival's above which a match is ambiguous
     gate: float = CHI2_3DOF_99  # Mahalanobis gate of a pose measurement (3 dof, 99 %)
     candidates: int = 2  # signature candidates registered per query, besides the anchor
-    query_every: int = 2  # scans between signature queries (the anchor is matched every scan)
+    query_every: int = 1  # scans between signature queries (the anchor is matched every scan)
     switch_margin: float = 0.3  # switch anchor when another milestone is this much nearer (m)
     loop_chi2: float = 1.0  # adjust the graph when a new loop edge disagrees this much
     min_points: int = 20  # fewer returns than this: the scan is not matched
