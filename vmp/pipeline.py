@@ -97,6 +97,8 @@ class Pipeline:
         self.anchor: int | None = None
         self.stats: Counter[str] = Counter()
         self.online: list[FloatArray] = []  # filter pose after each scan
+        # Every correction of the robot's pose: (scan index, kind, pose before, pose after).
+        self.corrections: list[tuple[int, str, FloatArray, FloatArray]] = []
         self.odometry: list[FloatArray] = []
         self.truth: list[FloatArray | None] = []
         self._refs: dict[int, Reference] = {}
@@ -202,6 +204,7 @@ class Pipeline:
             return
         self._pending = self.filter.pose.copy()
         self.filter.update(anchor[0].z, anchor[0].R)
+        self.corrections.append((len(self.map), "anchor", self._pending, self.filter.pose.copy()))
         self._anchor_reg = anchor[0].registration
         self._q_since = np.zeros((3, 3))
 
@@ -328,7 +331,9 @@ class Pipeline:
                                        cov_a + m.registration.covariance))
         # Re-localise on the milestone we hand over to (degenerate directions of its
         # registration carry a huge covariance, so the filter keeps its own estimate there).
+        before = self.filter.pose.copy()
         self.filter.update(m.z, m.R)
+        self.corrections.append((len(self.map), "handover", before, self.filter.pose.copy()))
         self._pending = None  # the scan goes into the new segment where the filter now is
         target = self.milestones.pose(m.milestone)
         handover = compose(placed, inverse(relative(target, self.filter.pose)))
@@ -348,7 +353,11 @@ class Pipeline:
         robot_in_anchor = relative(self.milestones.pose(self.anchor), self.filter.pose)
         poses = self.graph.optimize(self.milestones.poses)
         self.milestones.set_poses(poses)
+        if self.graph.marginals is not None:  # the loop has shrunk every milestone's doubt
+            self._abs_cov = [c + np.diag([1e-6, 1e-6, 1e-8]) for c in self.graph.marginals]
+        before = self.filter.pose.copy()
         self.filter.set_pose(compose(poses[self.anchor], robot_in_anchor))
+        self.corrections.append((len(self.map), "graph", before, self.filter.pose.copy()))
         self.stats["graph adjustments"] += 1
         self.stats["graph adjustment seconds"] += time.perf_counter() - t
         self.view.anchors_moved(self.milestones.ids, poses)

@@ -35,6 +35,7 @@ class PoseGraph:
 
     def __init__(self) -> None:
         self.edges: list[Edge] = []
+        self.marginals: FloatArray | None = None  # (N, 3, 3) after optimize(); node 0 fixed
 
     def add(self, i: int, j: int, z: FloatArray, covariance: FloatArray, kind: str) -> Edge:
         """Add an edge measured with ``covariance``."""
@@ -99,6 +100,16 @@ class PoseGraph:
                             x_scale="jac", max_nfev=max_iterations, xtol=1e-10, ftol=1e-10)
         out = np.vstack([fixed, sol.x.reshape(-1, 3)])
         out[:, 2] = wrap_angle(out[:, 2])
+        # Marginal covariances from the Gauss-Newton information at the optimum.
+        J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+        H = J.T @ J + np.eye(J.shape[1]) * 1e-9
+        try:
+            cov = np.linalg.inv(H)
+            self.marginals = np.zeros((n, 3, 3))
+            idx = np.arange(n - 1)[:, None] * 3 + np.arange(3)[None, :]
+            self.marginals[1:] = cov[idx[:, :, None], idx[:, None, :]]
+        except np.linalg.LinAlgError:
+            self.marginals = None
         return out
 
     def chi2(self, poses: FloatArray) -> float:
