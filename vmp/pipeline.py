@@ -62,6 +62,7 @@ class PipelineConfig:
     candidates: int = 2  # signature candidates registered per query, besides the anchor
     query_every: int = 1  # scans between signature queries (the anchor is matched every scan)
     switch_margin: float = 0.3  # switch anchor when another milestone is this much nearer (m)
+    loop_separation: int = 5  # milestones this many recordings apart may close a loop
     loop_chi2: float = 1.0  # adjust the graph when a new loop edge disagrees this much
     min_points: int = 20  # fewer returns than this: the scan is not matched
     initial_sigma: tuple[float, float, float] = (0.01, 0.01, math.radians(0.5))
@@ -149,14 +150,23 @@ class Pipeline:
             return []
         x, P = self.filter.pose, self.filter.covariance
         targets: list[tuple[int, str, float, float | None]] = [(self.anchor, "anchor", 0.0, None)]
+        d_anchor = float(np.hypot(*(self.milestones.pose(self.anchor)[:2] - x[:2])))
         if len(self.map) % c.query_every == 0:
             gate_cov = P
             for cand in self.milestones.query(frame.ranges, frame.angle_min,
                                               frame.angle_increment, frame.max_range,
                                               predicted_pose=x, covariance=gate_cov,
                                               max_candidates=c.candidates + 1):
-                if cand.id != self.anchor and len(targets) <= c.candidates:
-                    targets.append((cand.id, "signature", cand.ratio, cand.heading_offset))
+                if cand.id == self.anchor or len(targets) > c.candidates:
+                    continue
+                # Registering costs; do it only where a match could change something: a
+                # milestone nearer than the anchor (a handover) or one far back along the
+                # path (a loop).
+                d_cand = float(np.hypot(*(cand.pose[:2] - x[:2])))
+                near_anchor = abs(cand.id - self.anchor) <= c.loop_separation
+                if near_anchor and d_cand + c.switch_margin >= d_anchor:
+                    continue
+                targets.append((cand.id, "signature", cand.ratio, cand.heading_offset))
         return [self._register(mid, source, ratio, offset, points, x, P)
                 for mid, source, ratio, offset in targets]
 

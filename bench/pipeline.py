@@ -1,0 +1,84 @@
+"""Scans per second of the whole mapping pipeline, and bytes per stored scan.
+
+Run: python bench/pipeline.py [--repeat 3] [--scenarios office warehouse ...]
+Goal (issue 4): at least 300 scans/s on `office` with views off.
+
+Frames are simulated before the clock starts, so the figure is the pipeline's alone
+(predict, match, correct, insert, show with the null view; final graph adjustment and map
+assembly included; file writing excluded).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from report import machine, write_section
+
+from drivers.scenario import load_scenario
+from drivers.simulator import Simulator
+from vmp.evaluate import ate
+from vmp.pipeline import Pipeline
+from vmp.vector_map import BeamGeometry
+
+
+def one_run(frames, geom) -> tuple[float, Pipeline]:
+    p = Pipeline(geom)
+    t = time.perf_counter()
+    for f in frames:
+        p.step(f)
+    p.finish()
+    p.trajectory()
+    return time.perf_counter() - t, p
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--scenarios", nargs="+", default=["office", "warehouse", "corridor", "lab"])
+    args = ap.parse_args()
+    rows = []
+    for name in args.scenarios:
+        sim = Simulator(load_scenario(name))
+        frames = list(sim)
+        s = sim.sensor
+        geom = BeamGeometry(s.beams, s.angle_min, s.angle_increment, s.max_range)
+        times = []
+        for _ in range(args.repeat):
+            dt, p = one_run(frames, geom)
+            times.append(dt)
+        med = statistics.median(times)
+        traj = p.trajectory()
+        err = ate(sim.stamps, traj, sim.stamps, sim.true_poses).rmse
+        odo = ate(sim.stamps, sim.odom_poses, sim.stamps, sim.true_poses).rmse
+        rows.append((name, len(frames), len(frames) / med, len(frames) / max(times),
+                     len(frames) / min(times), p.map.bytes_per_scan, len(p.milestones),
+                     err, odo))
+        print(f"{name:10s} {len(frames)} scans: median {len(frames) / med:,.0f} scans/s "
+              f"({min(times):.2f}-{max(times):.2f} s), {p.map.bytes_per_scan:.0f} B/scan, "
+              f"ATE {100 * err:.1f} cm (odometry {100 * odo:.1f} cm)")
+    lines = [
+        "## Mapping pipeline",
+        "",
+        f"`python bench/pipeline.py --repeat {args.repeat}` on {machine()}.",
+        "Whole runs, views off, frames simulated beforehand; median of the runs. "
+        "Goal: >= 300 scans/s on office. ATE after SE(2) alignment, against the simulator's "
+        "truth.",
+        "",
+        "| scenario | scans | median scans/s | slowest - fastest | bytes/scan | milestones "
+        "| ATE | odometry ATE |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    lines += [f"| {r[0]} | {r[1]} | {r[2]:,.0f} | {r[3]:,.0f} - {r[4]:,.0f} | {r[5]:.0f} | "
+              f"{r[6]} | {100 * r[7]:.1f} cm | {100 * r[8]:.1f} cm |" for r in rows]
+    write_section("pipeline", "\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
