@@ -56,7 +56,7 @@ def test_grid_values_and_orientation():
     assert set(np.unique(g.cells)) <= {OCCUPIED, FREE, UNKNOWN}
     # Row 0 is the bottom (lowest y): the wall at y = 0 lies 3 rows above the 0.3 m margin.
     np.testing.assert_allclose(g.origin, (-0.3, -0.3), atol=1e-9)
-    row_wall = int(round((0.0 - g.origin[1]) / g.resolution))
+    row_wall = round((0.0 - g.origin[1]) / g.resolution)
     assert (g.cells[row_wall, 5:40] == OCCUPIED).mean() > 0.9
     assert g.cells[row_wall + 10, 20] == FREE
     assert g.cells[0, 0] == UNKNOWN

@@ -73,7 +73,7 @@ def test_lab_is_mapped_to_a_centimetre():
 
 
 def test_a_rejected_match_changes_nothing():
-    p, sim = run("lab", scans=200)
+    p, _ = run("lab", scans=200)
     frames = list(Simulator(load_scenario("office"), max_scans=3))
     pose, cov = p.filter.pose.copy(), p.filter.covariance.copy()
     matches = p.match(frames[-1])  # a scan from another building
@@ -99,7 +99,7 @@ def test_map_file_round_trip_is_exact(tmp_path):
     np.testing.assert_array_equal(back.map.world_poses(back.milestones.poses), traj)
     (tmp_path / "junk.vmpmap").write_bytes(b"not a map")
     from vmp.errors import InputError
-    with pytest.raises(InputError, match="junk.vmpmap"):
+    with pytest.raises(InputError, match=r"junk\.vmpmap"):
         load_map(tmp_path / "junk.vmpmap")
 
 
