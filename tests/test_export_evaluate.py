@@ -156,3 +156,36 @@ def test_relation_metric(tmp_path):
     bad.write_text("1 2 3\n")
     with pytest.raises(InputError, match=r"bad\.relations:1"):
         read_relations(bad)
+
+
+def test_ate_and_rpe_equal_what_evo_computes(tmp_path):
+    """Users check our numbers with evo: same files, same figures."""
+    from evo.core import metrics as evo_metrics
+    from evo.core import sync
+    from evo.main_ape import ape
+    from evo.main_rpe import rpe as evo_rpe
+    from evo.tools import file_interface
+
+    from vmp.tum import read_tum, write_tum
+
+    rng = np.random.default_rng(3)
+    ref = np.cumsum(rng.normal(0, [0.05, 0.05, 0.02], (500, 3)), axis=0)
+    est = compose([1.5, -2.0, 0.4], ref) + rng.normal(0, [0.02, 0.02, 0.005], (500, 3))
+    stamps = 1000.0 + np.arange(500) * 0.1
+    write_tum(tmp_path / "ref.tum", stamps, ref)
+    write_tum(tmp_path / "est.tum", stamps, est)
+    s, e = read_tum(tmp_path / "est.tum")
+    gs, g = read_tum(tmp_path / "ref.tum")
+    ours_ate = ate(s, e, gs, g)
+    ours_rpe = rpe(s, e, gs, g, delta=5)
+
+    traj_ref = file_interface.read_tum_trajectory_file(str(tmp_path / "ref.tum"))
+    traj_est = file_interface.read_tum_trajectory_file(str(tmp_path / "est.tum"))
+    traj_ref, traj_est = sync.associate_trajectories(traj_ref, traj_est, max_diff=0.01)
+    theirs_ate = ape(traj_ref, traj_est, pose_relation=evo_metrics.PoseRelation.translation_part,
+                     align=True, correct_scale=False).stats["rmse"]
+    theirs_rpe = evo_rpe(traj_ref, traj_est,
+                         pose_relation=evo_metrics.PoseRelation.translation_part, delta=5,
+                         delta_unit=evo_metrics.Unit.frames, all_pairs=True).stats["rmse"]
+    assert math.isclose(ours_ate.rmse, theirs_ate, rel_tol=1e-6)
+    assert math.isclose(ours_rpe.trans_rmse, theirs_rpe, rel_tol=1e-6)

@@ -1,7 +1,8 @@
 """Trajectory accuracy: ATE after SE(2) alignment, RPE, and the Kümmerle relation metric.
 
-The ATE and RPE follow evo's definitions (``evo_ape`` with ``--align``, ``evo_rpe`` with a
-frame delta), on poses matched by timestamp, so users can check our numbers with evo.
+The ATE and RPE follow evo's definitions (``evo_ape --align``, ``evo_rpe --delta N
+--delta_unit f --all_pairs``), on poses matched by timestamp, so users can check our numbers
+with evo; a test compares them with evo itself.
 """
 
 from __future__ import annotations
@@ -85,7 +86,7 @@ class RPE:
 
 def rpe(est_stamps: FloatArray, est: FloatArray, ref_stamps: FloatArray, ref: FloatArray,
         delta: int = 1, max_difference: float = 0.01) -> RPE:
-    """Relative pose error over ``delta`` frames (evo_rpe ``--delta N --delta_unit f``)."""
+    """Relative pose error over ``delta`` frames, every pair (evo_rpe ``--all_pairs``)."""
     ia, ib = associate(est_stamps, ref_stamps, max_difference)
     e, r = np.asarray(est)[ia], np.asarray(ref)[ib]
     if len(e) <= delta:
