@@ -321,11 +321,9 @@ def cmd_export(args: argparse.Namespace) -> int:
         write_geojson(args.contours, geom, {"what": "boundary of free space"})
         print(f"contours: {args.contours} ({geom.area:.1f} m2 of free space)")
     if args.graph:
-        edges = [{"from": e.i, "to": e.j, "kind": e.kind, "x": float(e.z[0]),
-                  "y": float(e.z[1]), "theta": float(e.z[2])} for e in data.graph.edges]
         ms = data.milestones
-        write_graph_json(args.graph, ms.ids, ms.poses, ms.stamps, edges)
-        print(f"graph: {args.graph} ({len(ms)} milestones, {len(edges)} edges)")
+        write_graph_json(args.graph, ms.ids, ms.poses, ms.stamps, data.graph.edges)
+        print(f"graph: {args.graph} ({len(ms)} milestones, {len(data.graph.edges)} edges)")
     return 0
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from vmp.errors import InputError
+from vmp.fileio import read_table
 from vmp.types import FloatArray, compose, inverse, relative, wrap_angle
 
 __all__ = ["ATE", "RPE", "RelationError", "align_se2", "associate", "ate", "read_relations",
@@ -111,27 +112,8 @@ class RelationError:
 
 def read_relations(path: str | Path) -> FloatArray:
     """Relations ``(K, 5)``: t1, t2, x, y, yaw from a ``t1 t2 x y z roll pitch yaw`` file."""
-    path = Path(path)
-    rows = []
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read: {exc}") from exc
-    for no, line in enumerate(lines, start=1):
-        parts = line.split()
-        if not parts or parts[0].startswith("#"):
-            continue
-        if len(parts) != 8:
-            raise InputError(f"{path}:{no}: expected 't1 t2 x y z roll pitch yaw', "
-                             f"got {len(parts)} values")
-        try:
-            v = [float(p) for p in parts]
-        except ValueError as exc:
-            raise InputError(f"{path}:{no}: not a number: {exc}") from exc
-        rows.append([v[0], v[1], v[2], v[3], v[7]])
-    if not rows:
-        raise InputError(f"{path}: no relations")
-    return np.array(rows)
+    a = read_table(path, 8, "t1 t2 x y z roll pitch yaw")
+    return a[:, [0, 1, 2, 3, 7]]
 
 
 def relation_error(stamps: FloatArray, poses: FloatArray, relations: FloatArray,

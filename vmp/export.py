@@ -214,8 +214,10 @@ def write_geojson(path: str | Path, geometry: shapely.Geometry, properties: dict
 
 
 def write_graph_json(path: str | Path, ids: NDArray, poses: FloatArray, stamps: FloatArray,
-                     edges: list[dict]) -> None:
-    """Milestones (nodes) and path / loop edges as JSON."""
+                     edges: list) -> None:
+    """Milestones (nodes) and path / loop edges (:class:`vmp.pose_graph.Edge`) as JSON."""
+    edges = [{"from": e.i, "to": e.j, "kind": e.kind, "x": float(e.z[0]), "y": float(e.z[1]),
+              "theta": float(e.z[2])} for e in edges]
     nodes = [{"id": int(i), "x": float(p[0]), "y": float(p[1]), "theta": float(p[2]),
               "stamp": float(s)} for i, p, s in zip(ids, poses, stamps, strict=True)]
     with atomic_write(path, "w") as f:

@@ -85,10 +85,8 @@ def export_all(out: Path, vmap, poses: np.ndarray, milestones, graph, resolution
         write_geojson(out / "contours.geojson", geom,
                       {"what": "boundary of free space", "area_m2": round(geom.area, 3)})
         written["contours"] = str(out / "contours.geojson")
-    edges = [{"from": e.i, "to": e.j, "kind": e.kind, "x": float(e.z[0]), "y": float(e.z[1]),
-              "theta": float(e.z[2])} for e in graph.edges]
     write_graph_json(out / "graph.json", milestones.ids, milestones.poses, milestones.stamps,
-                     edges)
+                     graph.edges)
     written["graph"] = str(out / "graph.json")
     return written
 

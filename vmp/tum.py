@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
-from vmp.errors import InputError
-from vmp.fileio import atomic_write
+from vmp.fileio import atomic_write, read_table
 from vmp.types import FloatArray, wrap_angle
 
 __all__ = ["read_tum", "write_tum"]
@@ -32,30 +30,7 @@ def write_tum(path: str | Path, stamps: FloatArray, poses: FloatArray) -> None:
 
 def read_tum(path: str | Path) -> tuple[FloatArray, FloatArray]:
     """Read a TUM file into stamps ``(N,)`` and planar poses ``(N, 3)``, yaw from the quaternion."""
-    path = Path(path)
-    rows = []
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read: {exc}") from exc
-    for no, line in enumerate(lines, start=1):
-        text = line.strip()
-        if not text or text.startswith("#"):
-            continue
-        parts = text.replace(",", " ").split()
-        if len(parts) != 8:
-            raise InputError(f"{path}:{no}: expected 8 values 't x y z qx qy qz qw', "
-                             f"got {len(parts)}")
-        try:
-            vals = [float(p) for p in parts]
-        except ValueError as exc:
-            raise InputError(f"{path}:{no}: not a number: {exc}") from exc
-        if not all(math.isfinite(v) for v in vals):
-            raise InputError(f"{path}:{no}: values must be finite")
-        rows.append(vals)
-    if not rows:
-        raise InputError(f"{path}: no poses (expected lines 't x y z qx qy qz qw')")
-    a = np.array(rows)
+    a = read_table(path, 8, "t x y z qx qy qz qw")
     qx, qy, qz, qw = a[:, 4], a[:, 5], a[:, 6], a[:, 7]
     yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy**2 + qz**2))
     return a[:, 0], np.column_stack([a[:, 1], a[:, 2], wrap_angle(yaw)])
