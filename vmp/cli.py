@@ -114,6 +114,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="occupancy grid cell size in metres (default: 0.05)")
     mp.add_argument("--scans", type=_positive_int, help="stop after this many scans")
     mp.add_argument("--seed", type=_nonneg_int, help="simulation seed (scenarios only)")
+    mp.add_argument("--rerun", metavar="TARGET",
+                    help="watch in Rerun: a .rrd file to save, 'spawn' (native viewer) or "
+                    "'serve' (web viewer on localhost)")
     mp.add_argument("-q", "--quiet", action="store_true", help="no progress, no table")
     mp.set_defaults(func=cmd_map)
 
@@ -255,7 +258,17 @@ def cmd_map(args: argparse.Namespace) -> int:
     if not (args.resolution > 0):
         raise InputError(f"--resolution must be positive, got {args.resolution}")
     frames, geom, total, name = _open_source(args.source, args.seed, args.scans)
-    pipeline = Pipeline(geom, config)
+    view = None
+    if args.rerun:
+        from viz.rerun_view import open_rerun
+
+        try:
+            view, where = open_rerun(args.rerun)
+        except ValueError as exc:
+            raise InputError(str(exc)) from exc
+        if not args.quiet:
+            print(f"rerun: {where}")
+    pipeline = Pipeline(geom, config, view)
     progress = Progress(total, f"mapping {name}", enabled=False if args.quiet else None)
     stamps = []
     for frame in progress.wrap(frames):
@@ -269,6 +282,12 @@ def cmd_map(args: argparse.Namespace) -> int:
     pipeline.finish()
     out = new_results_dir(args.out, name)
     metrics = write_results(out, pipeline, np.array(stamps), args.source, args.resolution)
+    if view is not None:
+        from vmp.export import read_ros_map
+
+        grid = read_ros_map(out / "grid.yaml")
+        view.grid(grid.cells, grid.resolution, grid.origin)
+        view.close()
     if not args.quiet:
         print(format_metrics(metrics))
         print(f"\nresults in {out} (also {args.out / 'latest'}):")

@@ -79,6 +79,7 @@ class Match:
     R: FloatArray  # its covariance
     mahalanobis2: float
     ratio: float
+    score: float  # the signature score (nan for the anchor)
     accepted: bool
     reason: str  # why it was rejected ("" when accepted)
 
@@ -112,6 +113,7 @@ class Pipeline:
         self.scan_odometry = ScanOdometry(self.config.scan_odometry, self.config.registration,
                                           self.config.motion)
         self._started = time.perf_counter()
+        self._stamp = 0.0
 
     # ---- one scan ----------------------------------------------------------------------------
 
@@ -123,6 +125,7 @@ class Pipeline:
         self.show(frame, matches)
 
     def predict(self, frame: ScanFrame) -> None:
+        self._stamp = frame.stamp
         odom = frame.odom if frame.odom is not None else np.zeros(3)
         if self.filter is None:
             start = odom if frame.odom is not None else np.zeros(3)
@@ -149,7 +152,8 @@ class Pipeline:
             self.stats["scans too sparse to match"] += 1
             return []
         x, P = self.filter.pose, self.filter.covariance
-        targets: list[tuple[int, str, float, float | None]] = [(self.anchor, "anchor", 0.0, None)]
+        targets: list[tuple[int, str, float, float | None, float]] = [
+            (self.anchor, "anchor", 0.0, None, math.nan)]
         d_anchor = float(np.hypot(*(self.milestones.pose(self.anchor)[:2] - x[:2])))
         if len(self.map) % c.query_every == 0:
             gate_cov = P
@@ -166,12 +170,13 @@ class Pipeline:
                 near_anchor = abs(cand.id - self.anchor) <= c.loop_separation
                 if near_anchor and d_cand + c.switch_margin >= d_anchor:
                     continue
-                targets.append((cand.id, "signature", cand.ratio, cand.heading_offset))
-        return [self._register(mid, source, ratio, offset, points, x, P)
-                for mid, source, ratio, offset in targets]
+                targets.append((cand.id, "signature", cand.ratio, cand.heading_offset,
+                                cand.score))
+        return [self._register(mid, source, ratio, offset, score, points, x, P)
+                for mid, source, ratio, offset, score in targets]
 
     def _register(self, mid: int, source: str, ratio: float, offset: float | None,
-                  points: FloatArray, x: FloatArray, P: FloatArray) -> Match:
+                  score: float, points: FloatArray, x: FloatArray, P: FloatArray) -> Match:
         c = self.config
         ms_pose = self.milestones.pose(mid)
         guess = relative(ms_pose, x)
@@ -201,7 +206,7 @@ class Pipeline:
             reason = "ambiguous"
         elif d2 > c.gate:
             reason = "gate"
-        return Match(mid, source, reg, z, R, d2, ratio, reason == "", reason)
+        return Match(mid, source, reg, z, R, d2, ratio, score, reason == "", reason)
 
     def correct(self, matches: list[Match]) -> None:
         """Update the filter from the anchor match; a return to an old milestone instead
@@ -251,11 +256,27 @@ class Pipeline:
                 self._start_segment(new, handover=placed)
 
     def show(self, frame: ScanFrame, matches: list[Match]) -> None:
-        self.view.scan(len(self.map) - 1, frame.stamp, self.filter.pose, self._last_odom,
-                       frame.true_pose)
+        k = len(self.map) - 1
+        anchor = [m for m in matches if m.source == "anchor" and m.accepted]
+        scores = [m.score for m in matches if m.source == "signature"]
+        metrics = {
+            "innovation": anchor[0].mahalanobis2 if anchor else math.nan,
+            "score": min(scores) if scores else math.nan,
+            "covariance_trace": float(np.trace(self.filter.covariance[:2, :2])),
+        }
+        hits = np.unpackbits(self.map.packed_hits[k], count=self.geometry.num_beams).astype(bool)
+        self.view.scan(k, frame.stamp, self.filter.pose, self._last_odom, frame.true_pose,
+                       int(self.map.segments[k]), self.map.rel_poses[k], self.map.end_points[k],
+                       hits, metrics)
         for m in matches:
             self.view.match(m.milestone, self.milestones.pose(m.milestone), self.filter.pose,
                             m.accepted, m.reason)
+            if m.source == "signature":
+                verdict = "accepted" if m.accepted else f"rejected ({m.reason})"
+                self.view.event(f"scan {k}: milestone {m.milestone} {verdict}, score "
+                                f"{m.score:.3f}, ratio {m.ratio:.2f}, "
+                                f"fit {m.registration.rms:.3f} m",
+                                "INFO" if m.accepted else "DEBUG")
 
     def _reference(self, mid: int) -> Reference:
         """The registration reference of a milestone's stored scan (built once)."""
@@ -272,8 +293,10 @@ class Pipeline:
 
     def _start_segment(self, anchor: int, handover: FloatArray | None) -> None:
         self.anchor = anchor
-        self.map.new_segment(anchor, handover)
+        segment = self.map.new_segment(anchor, handover)
         self._last_corrected = len(self.map) - 1
+        self.view.segment(len(self.map), self._stamp, segment, anchor,
+                          self.milestones.pose(anchor))
 
     def _robot_in_anchor(self) -> tuple[FloatArray, FloatArray]:
         """The robot's pose in the anchor's frame and its covariance.
@@ -351,6 +374,8 @@ class Pipeline:
         edge = self.graph.add(self.anchor, m.milestone, z, cov, "path" if sequential else "loop")
         self.stats["anchor switches"] += 1
         self._start_segment(m.milestone, handover=handover)
+        self.view.event(f"scan {len(self.map)}: handed over from milestone {edge.i} to "
+                        f"{edge.j} ({edge.kind} edge)")
         if edge.kind == "loop":
             self.stats["loop edges"] += 1
             e = self.graph.error(self.milestones.poses, edge)

@@ -12,8 +12,14 @@ __all__ = ["NullView", "View"]
 class View(Protocol):
     """Receives plain arrays and values as the map is built (``viz`` implements it)."""
 
+    def segment(self, index: int, stamp: float, segment: int, anchor_id: int,
+                anchor_pose: FloatArray) -> None:
+        """A segment opened at scan ``index``, anchored at a milestone."""
+
     def scan(self, index: int, stamp: float, pose: FloatArray, odom: FloatArray,
-             true_pose: FloatArray | None) -> None: ...
+             true_pose: FloatArray | None, segment: int, rel_pose: FloatArray,
+             end_points: FloatArray, hits: FloatArray, metrics: dict[str, float]) -> None:
+        """A scan inserted: its pose in its segment's frame, end points in its own frame."""
 
     def milestone(self, milestone_id: int, pose: FloatArray) -> None: ...
 
@@ -22,13 +28,21 @@ class View(Protocol):
 
     def anchors_moved(self, ids: FloatArray, poses: FloatArray) -> None: ...
 
+    def event(self, text: str, level: str = "INFO") -> None: ...
+
+    def grid(self, cells: FloatArray, resolution: float, origin: tuple[float, float]) -> None: ...
+
     def close(self) -> None: ...
 
 
 class NullView:
     """A view that does nothing, at no cost."""
 
-    def scan(self, index, stamp, pose, odom, true_pose) -> None:
+    def segment(self, index, stamp, segment, anchor_id, anchor_pose) -> None:
+        pass
+
+    def scan(self, index, stamp, pose, odom, true_pose, segment, rel_pose, end_points, hits,
+             metrics) -> None:
         pass
 
     def milestone(self, milestone_id, pose) -> None:
@@ -38,6 +52,12 @@ class NullView:
         pass
 
     def anchors_moved(self, ids, poses) -> None:
+        pass
+
+    def event(self, text, level="INFO") -> None:
+        pass
+
+    def grid(self, cells, resolution, origin) -> None:
         pass
 
     def close(self) -> None:
