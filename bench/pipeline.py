@@ -1,7 +1,8 @@
 """Scans per second of the whole mapping pipeline, and bytes per stored scan.
 
 Run: python bench/pipeline.py [--repeat 3] [--scenarios office warehouse ...]
-Goal (issue 4): at least 300 scans/s on `office` with views off.
+Goals: at least 300 scans/s on `office` with views off (issue 4); logging to Rerun
+(`--rerun FILE`) costs at most 20 % more time (issue 5).
 
 Frames are simulated before the clock starts, so the figure is the pipeline's alone
 (predict, match, correct, insert, show with the null view; final graph adjustment and map
@@ -27,13 +28,20 @@ from vmp.pipeline import Pipeline
 from vmp.vector_map import BeamGeometry
 
 
-def one_run(frames, geom) -> tuple[float, Pipeline]:
-    p = Pipeline(geom)
+def one_run(frames, geom, rrd: Path | None = None) -> tuple[float, Pipeline]:
+    view = None
+    if rrd is not None:
+        from viz.rerun_view import open_rerun
+
+        view, _ = open_rerun(str(rrd))
+    p = Pipeline(geom, view=view)
     t = time.perf_counter()
     for f in frames:
         p.step(f)
     p.finish()
     p.trajectory()
+    if view is not None:
+        view.close()
     return time.perf_counter() - t, p
 
 
@@ -78,6 +86,40 @@ def main() -> None:
     lines += [f"| {r[0]} | {r[1]} | {r[2]:,.0f} | {r[3]:,.0f} - {r[4]:,.0f} | {r[5]:.0f} | "
               f"{r[6]} | {100 * r[7]:.1f} cm | {100 * r[8]:.1f} cm |" for r in rows]
     write_section("pipeline", "\n".join(lines))
+    rerun_overhead(args.repeat)
+
+
+def rerun_overhead(repeat: int) -> None:
+    """Office with views off against office logging to a .rrd file, alternating runs."""
+    import tempfile
+
+    sim = Simulator(load_scenario("office"))
+    frames = list(sim)
+    s = sim.sensor
+    geom = BeamGeometry(s.beams, s.angle_min, s.angle_increment, s.max_range)
+    off, on = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for k in range(repeat):
+            off.append(one_run(frames, geom)[0])
+            rrd = Path(tmp) / f"office{k}.rrd"
+            on.append(one_run(frames, geom, rrd)[0])
+            size = rrd.stat().st_size
+    ratio = statistics.median(on) / statistics.median(off)
+    print(f"office with --rerun FILE: median {statistics.median(on):.2f} s against "
+          f"{statistics.median(off):.2f} s without: {100 * (ratio - 1):+.0f} % "
+          f"({size / 1e6:.1f} MB recording)")
+    write_section("rerun", "\n".join([
+        "## Rerun logging cost",
+        "",
+        f"`python bench/pipeline.py --repeat {repeat}` (last part) on {machine()}.",
+        "The office run with views off and with `--rerun FILE`, alternating; medians. "
+        "Goal: at most 20 % more time.",
+        "",
+        "| views off | --rerun FILE | extra time | recording size |",
+        "|---|---|---|---|",
+        f"| {statistics.median(off):.2f} s | {statistics.median(on):.2f} s | "
+        f"{100 * (ratio - 1):+.0f} % | {size / 1e6:.1f} MB |",
+    ]))
 
 
 if __name__ == "__main__":

@@ -11,7 +11,9 @@ and draw (software rendering is slow), and asks it for a screenshot.
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -33,7 +35,8 @@ def main() -> int:
     viewer = subprocess.Popen(
         [rerun, "--headless", "--renderer", "vulkan", "--window-size", args.size,
          "--port", str(args.port), "--hide-welcome-screen"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        start_new_session=True)  # its own process group: the wrapper starts the binary
     try:
         client = None
         for _ in range(100):
@@ -52,7 +55,7 @@ def main() -> int:
         print(f"screenshot: {args.png}")
         return 0
     finally:
-        viewer.terminate()
+        os.killpg(viewer.pid, signal.SIGTERM)
         viewer.wait(timeout=10)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
@@ -258,7 +259,7 @@ def cmd_map(args: argparse.Namespace) -> int:
     if not (args.resolution > 0):
         raise InputError(f"--resolution must be positive, got {args.resolution}")
     frames, geom, total, name = _open_source(args.source, args.seed, args.scans)
-    view = None
+    view, where = None, ""
     if args.rerun:
         from viz.rerun_view import open_rerun
 
@@ -287,6 +288,14 @@ def cmd_map(args: argparse.Namespace) -> int:
 
         grid = read_ros_map(out / "grid.yaml")
         view.grid(grid.cells, grid.resolution, grid.origin)
+        if args.rerun == "serve":
+            view.rec.flush()
+            print(f"rerun: still serving ({where}); press Ctrl-C to stop", flush=True)
+            try:
+                while True:
+                    time.sleep(1.0)
+            except KeyboardInterrupt:
+                pass
         view.close()
     if not args.quiet:
         print(format_metrics(metrics))
