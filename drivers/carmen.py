@@ -11,9 +11,11 @@ Line formats (one message per line, ``#`` starts a comment)::
         tv rv forward_safety_dist side_safety_dist turn_axis
         ipc_timestamp ipc_hostname logger_timestamp
 
-FLASER assumes a scan centred on the heading; its field of view and resolution come from the
-``laser_front_laser_fov`` and ``laser_front_laser_resolution`` parameters (default 180 and 1
-degree). A range at or beyond the laser's maximum range means "no return".
+FLASER assumes a scan centred on the heading whose first and last beams lie at -fov/2 and
++fov/2, fov from the ``laser_front_laser_fov`` parameter (default 180 degrees): n beams are
+``linspace(-fov/2, fov/2, n)``, so 181 beams step by 1 degree and 180 beams (the Intel
+recording, whose source states beam_start -pi/2, beam_end +pi/2) by 180/179 degrees. A range at
+or beyond the laser's maximum range means "no return".
 """
 
 from __future__ import annotations
@@ -186,8 +188,9 @@ def _parse_laser(kind: str, parts: list[str], params: dict[str, str], index: int
         tail = parts[2 + n:]
         odom = np.array(tail[3:6], dtype=np.float64)
         stamp = float(tail[6])
-        inc = math.radians(float(params.get("laser_front_laser_resolution", "1")))
-        angle_min = -inc * (n - 1) / 2.0
+        fov = math.radians(float(params.get("laser_front_laser_fov", "180")))
+        inc = fov / (n - 1) if n > 1 else fov
+        angle_min = -fov / 2.0
         max_range = float(params.get("robot_front_laser_max", "81.83"))
     else:
         angle_min, _fov, inc, max_range = (float(v) for v in parts[2:6])

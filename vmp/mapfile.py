@@ -47,6 +47,7 @@ def save_map(path: str | os.PathLike[str], vmap: VectorMap, milestones: Mileston
     header = {
         "format": FORMAT, "version": VERSION,
         "geometry": asdict(vmap.geometry),
+        "free_range": vmap.free_range,
         "config": config,
         "segment_anchor": vmap.segment_anchor,
         "segment_end": [None if e is None else [e[0], [float(v) for v in e[1]]]
@@ -91,7 +92,7 @@ def load_map(path: str | os.PathLike[str]) -> MapData:
         raise InputError(f"{path}: map file version {header.get('version')}, this program "
                          f"reads version {VERSION}")
     try:
-        vmap = VectorMap(BeamGeometry(**header["geometry"]))
+        vmap = VectorMap(BeamGeometry(**header["geometry"]), header.get("free_range"))
         vmap.restore(header["segment_anchor"], header["segment_end"], a["points"], a["hits"],
                      a["rel"], a["segment"], a["stamps"])
         ms_state = {k[len(_MS):]: v for k, v in a.items() if k.startswith(_MS)}

@@ -65,6 +65,7 @@ class PipelineConfig:
     loop_separation: int = 5  # milestones this many recordings apart may close a loop
     loop_chi2: float = 1.0  # adjust the graph when a new loop edge disagrees this much
     min_points: int = 20  # fewer returns than this: the scan is not matched
+    no_return_free_range: float = 10.0  # how far a beam without a return marks free space (m)
     initial_sigma: tuple[float, float, float] = (0.01, 0.01, math.radians(0.5))
 
 
@@ -92,7 +93,7 @@ class Pipeline:
         self.config = config or PipelineConfig()
         self.view: View = view or NullView()
         self.geometry = geometry
-        self.map = VectorMap(geometry)
+        self.map = VectorMap(geometry, self.config.no_return_free_range)
         self.milestones = MilestoneManager(self.config.milestones)
         self.graph = PoseGraph()
         self.filter: PoseFilter | None = None

@@ -65,8 +65,12 @@ class _Grow:
 class VectorMap:
     """Scan polygons in segments; each segment lives in the frame of its anchor milestone."""
 
-    def __init__(self, geometry: BeamGeometry) -> None:
+    def __init__(self, geometry: BeamGeometry, free_range: float | None = None) -> None:
+        """``free_range`` caps how far a beam without a return marks free space (default: the
+        maximum range); real scanners report no return for glass and dark surfaces too, and
+        80 m of invented free space is worse than none."""
         self.geometry = geometry
+        self.free_range = min(geometry.max_range, free_range or geometry.max_range)
         n = geometry.num_beams
         self._points = _Grow((n, 2), np.float32)
         self._hits = _Grow(((n + 7) // 8,), np.uint8)
@@ -105,7 +109,7 @@ class VectorMap:
         if r.shape != (self.geometry.num_beams,):
             raise ValueError(f"expected {self.geometry.num_beams} ranges, got {r.shape}")
         hit = np.isfinite(r)
-        free = np.where(hit, r, self.geometry.max_range)
+        free = np.where(hit, r, self.free_range)
         pts = np.stack([free * self._cos, free * self._sin], axis=-1)
         self._points.append(pts)
         self._hits.append(np.packbits(hit))
