@@ -60,6 +60,8 @@ class PipelineConfig:
     max_ratio: float = 0.9  # signature score / best rival's above which a match is ambiguous
     gate: float = CHI2_3DOF_99  # Mahalanobis gate of a pose measurement (3 dof, 99 %)
     candidates: int = 2  # signature candidates registered per query, besides the anchor
+    retry_max_ratio: float = 0.7  # a signature match registered from the node itself needs a
+    retry_min_inliers: float = 0.75  # clearer place and a closer fit
     query_every: int = 1  # scans between signature queries (the anchor is matched every scan)
     switch_margin: float = 0.3  # switch anchor when another milestone is this much nearer (m)
     loop_separation: int = 5  # milestones this many recordings apart may close a loop
@@ -157,7 +159,7 @@ class Pipeline:
             (self.anchor, "anchor", 0.0, None, math.nan)]
         d_anchor = float(np.hypot(*(self.milestones.pose(self.anchor)[:2] - x[:2])))
         if len(self.map) % c.query_every == 0:
-            gate_cov = P
+            gate_cov = P + self._robot_cov_via_anchor()
             for cand in self.milestones.query(frame.ranges, frame.angle_min,
                                               frame.angle_increment, frame.max_range,
                                               predicted_pose=x, covariance=gate_cov,
@@ -184,6 +186,15 @@ class Pipeline:
         if offset is not None and P[2, 2] > math.radians(10) ** 2:
             guess[2] = offset  # an uncertain heading: trust the signature's instead
         reg = register(self._reference(mid), points, guess, c.registration)
+        if source == "signature" and offset is not None and not self._fits(reg):
+            # The prediction may have drifted far (a loop after a long way round): a matching
+            # signature says the robot stands near the node, turned by the offset.
+            retry = register(self._reference(mid), points, np.array([0.0, 0.0, offset]),
+                             c.registration)
+            # Only a clear place and a close fit: this guess ignores the prediction.
+            if (self._fits(retry) and ratio <= c.retry_max_ratio
+                    and retry.inliers >= c.retry_min_inliers):
+                reg = retry
         z = compose(ms_pose, reg.pose)
         rot = np.eye(3)
         rot[:2, :2] = [[math.cos(ms_pose[2]), -math.sin(ms_pose[2])],
@@ -201,13 +212,17 @@ class Pipeline:
         y = pose_residual(z, x)
         d2 = float(y @ np.linalg.solve(spread, y))
         reason = ""
-        if not np.isfinite(reg.rms) or reg.rms > c.max_rms or reg.inliers < c.min_inliers:
+        if not self._fits(reg):
             reason = "poor fit"
         elif source == "signature" and ratio > c.max_ratio:
             reason = "ambiguous"
         elif d2 > c.gate:
             reason = "gate"
         return Match(mid, source, reg, z, R, d2, ratio, score, reason == "", reason)
+
+    def _fits(self, reg: Registration) -> bool:
+        c = self.config
+        return bool(np.isfinite(reg.rms) and reg.rms <= c.max_rms and reg.inliers >= c.min_inliers)
 
     def correct(self, matches: list[Match]) -> None:
         """Update the filter from the anchor match; a return to an old milestone instead
