@@ -34,7 +34,7 @@ from vmp.errors import InputError
 from vmp.fileio import atomic_write
 from vmp.types import ScanFrame, wrap_angle
 
-__all__ = ["CarmenWriter", "read_carmen", "write_carmen"]
+__all__ = ["CarmenLog", "CarmenWriter", "read_carmen", "write_carmen"]
 
 HOST = "vmp"
 
@@ -147,33 +147,83 @@ def _open_text(path: Path) -> IO[str]:
     return open(path, encoding="ascii", errors="replace")
 
 
-def read_carmen(path: str | os.PathLike[str]) -> Iterator[ScanFrame]:
-    """Yield the scans of a CARMEN log (FLASER and ROBOTLASER1 lines), lazily, in file order.
+class CarmenLog:
+    """The scans of a CARMEN log (FLASER and ROBOTLASER1 lines), read lazily in file order.
 
-    The odometry of a scan is the pose its own line carries. A malformed line raises
-    :class:`InputError` naming the file and line.
+    A bad line (fields that do not add up, a range that is NaN or negative, a pose that is
+    not finite) is skipped and recorded in :attr:`problems` with its line number. A stamp that
+    runs backwards is recorded too but the scan is kept in file order: real logs do this (the
+    Intel recording's scans come in bursts whose stamps go back by up to a second), and the
+    mapper follows odometry, not time. With ``strict`` the first of either raises
+    :class:`InputError`. The odometry of a scan is the pose its line carries. Memory does not
+    grow with the file: lines are read one at a time (gzip too).
     """
-    path = Path(path)
-    params: dict[str, str] = {}
-    index = 0
-    with _open_text(path) as f:
-        for no, line in enumerate(f, start=1):
-            parts = line.split()
-            if not parts or parts[0].startswith("#"):
-                continue
-            kind = parts[0]
-            where = f"{path}:{no}"
-            if kind == "PARAM" and len(parts) >= 3:
-                params[parts[1]] = parts[2]
-                continue
-            if kind not in ("FLASER", "ROBOTLASER1"):
-                continue
-            try:
-                frame = _parse_laser(kind, parts, params, index)
-            except (ValueError, IndexError) as exc:
-                raise InputError(f"{where}: bad {kind} line: {exc}") from exc
-            index += 1
-            yield frame
+
+    def __init__(self, path: str | os.PathLike[str], *, strict: bool = False) -> None:
+        self.path = Path(path)
+        self.strict = strict
+        self.problems: list[tuple[int, str]] = []  # (line, what), the first 1,000
+        self.skipped = 0
+        self.backwards = 0
+        self.scans = 0
+
+    def _bad(self, no: int, what: str, skip: bool = True) -> None:
+        if self.strict:
+            raise InputError(f"{self.path}:{no}: {what}")
+        if skip:
+            self.skipped += 1
+        else:
+            self.backwards += 1
+        if len(self.problems) < 1000:
+            self.problems.append((no, what))
+
+    def __iter__(self) -> Iterator[ScanFrame]:
+        params: dict[str, str] = {}
+        last_stamp = -math.inf
+        self.problems, self.skipped, self.backwards, self.scans = [], 0, 0, 0
+        try:
+            f = _open_text(self.path)
+        except OSError as exc:
+            raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
+        with f:
+            for no, line in enumerate(f, start=1):
+                parts = line.split()
+                if not parts or parts[0].startswith("#"):
+                    continue
+                kind = parts[0]
+                if kind == "PARAM" and len(parts) >= 3:
+                    params[parts[1]] = parts[2]
+                    continue
+                if kind not in ("FLASER", "ROBOTLASER1"):
+                    continue
+                try:
+                    frame = _parse_laser(kind, parts, params, self.scans)
+                except (ValueError, IndexError) as exc:
+                    self._bad(no, f"bad {kind} line: {exc}")
+                    continue
+                if frame.stamp < last_stamp:
+                    self._bad(no, f"stamp {frame.stamp:.6f} runs backwards (latest before "
+                                  f"{last_stamp:.6f}); scan kept", skip=False)
+                last_stamp = max(last_stamp, frame.stamp)
+                self.scans += 1
+                yield frame
+
+    def summary(self) -> str:
+        """One line on what was skipped or odd, with the first few line numbers."""
+        if not self.problems:
+            return f"{self.path}: {self.scans} scans, no bad lines"
+        first = "; ".join(f"line {no}: {what}" for no, what in self.problems[:3])
+        more = "; ..." if len(self.problems) > 3 else ""
+        return (f"{self.path}: {self.scans} scans, {self.skipped} bad lines skipped, "
+                f"{self.backwards} stamps running backwards ({first}{more})")
+
+
+def read_carmen(path: str | os.PathLike[str], strict: bool = True) -> Iterator[ScanFrame]:
+    """Iterate the scans of a CARMEN log; by default the first bad line raises.
+
+    Use :class:`CarmenLog` to skip and count bad lines instead.
+    """
+    return iter(CarmenLog(path, strict=strict))
 
 
 def _parse_laser(kind: str, parts: list[str], params: dict[str, str], index: int) -> ScanFrame:
@@ -186,7 +236,8 @@ def _parse_laser(kind: str, parts: list[str], params: dict[str, str], index: int
                              f"(expected {2 + n + 9} fields, got {len(parts)})")
         ranges = np.array(parts[2:2 + n], dtype=np.float64)
         tail = parts[2 + n:]
-        odom = np.array(tail[3:6], dtype=np.float64)
+        poses = np.array(tail[0:6], dtype=np.float64)
+        odom = poses[3:6]
         stamp = float(tail[6])
         fov = math.radians(float(params.get("laser_front_laser_fov", "180")))
         inc = fov / (n - 1) if n > 1 else fov
@@ -201,12 +252,17 @@ def _parse_laser(kind: str, parts: list[str], params: dict[str, str], index: int
         if len(ranges) != n or len(tail) != 14:
             raise ValueError(f"declares {n} ranges and {n_rem} remissions but the field "
                              "count does not match")
-        odom = np.array(tail[0:3], dtype=np.float64)
+        poses = np.array(tail[0:6], dtype=np.float64)
+        odom = poses[0:3]
         stamp = float(tail[11])
-    if not np.isfinite(ranges).all() or (ranges < 0).any():
-        raise ValueError("ranges must be finite and >= 0")
-    if not np.isfinite(odom).all() or not math.isfinite(stamp):
-        raise ValueError("pose and timestamp must be finite")
+    if np.isnan(ranges).any():
+        raise ValueError("a range is NaN")
+    if (ranges < 0).any():
+        raise ValueError(f"a range is negative ({float(ranges.min())})")
+    if not np.isfinite(poses).all():
+        raise ValueError(f"the pose is not finite ({' '.join(f'{v:g}' for v in poses)})")
+    if not math.isfinite(stamp):
+        raise ValueError("the timestamp is not finite")
     ranges = np.where((ranges >= max_range) | (ranges <= 0), np.inf, ranges)
     return ScanFrame(stamp=stamp, ranges=ranges, angle_min=angle_min, angle_increment=inc,
                      max_range=max_range, odom=odom, index=index)

@@ -81,3 +81,59 @@ def test_a_failed_write_leaves_no_file(tmp_path):
         write_carmen(out, frames())
     assert not out.exists()
     assert list(tmp_path.iterdir()) == []
+
+
+GOOD = "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 {t} host {t}\n"
+
+
+def log_with(tmp_path, bad_line, name="bad.clf"):
+    p = tmp_path / name
+    p.write_text(GOOD.format(t=1.0) + bad_line + GOOD.format(t=3.0))
+    return p
+
+
+@pytest.mark.parametrize("bad_line, what", [
+    ("FLASER 5 1.0 2.0 3.0 0 0 0 0 0 0 2.0 host 2.0\n", "declares 5 ranges but holds 3"),
+    ("FLASER 3 1.0 2.0 3.0 0 nan 0 0 0 0 2.0 host 2.0\n", "the pose is not finite"),
+    ("FLASER 3 1.0 -2.0 3.0 0 0 0 0 0 0 2.0 host 2.0\n", "a range is negative"),
+    ("FLASER 3 1.0 nan 3.0 0 0 0 0 0 0 2.0 host 2.0\n", "a range is NaN"),
+    ("FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 2.0 host\n", "declares 3 ranges but holds 2"),
+])
+def test_a_bad_line_is_skipped_counted_and_reported_or_stops_strict(tmp_path, bad_line, what):
+    from drivers.carmen import CarmenLog
+
+    log = CarmenLog(log_with(tmp_path, bad_line))
+    frames = list(log)
+    assert [f.stamp for f in frames] == [1.0, 3.0]
+    assert log.skipped == 1 and log.problems[0][0] == 2 and what in log.problems[0][1]
+    assert "line 2" in log.summary()
+    with pytest.raises(InputError, match=rf"bad\.clf:2: .*{what}"):
+        list(CarmenLog(log_with(tmp_path, bad_line), strict=True))
+
+
+def test_a_stamp_running_backwards_is_reported_and_kept(tmp_path):
+    from drivers.carmen import CarmenLog
+
+    log = CarmenLog(log_with(tmp_path, GOOD.format(t=0.5)))
+    assert [f.stamp for f in log] == [1.0, 0.5, 3.0]  # kept in file order
+    assert log.backwards == 1 and log.skipped == 0
+    assert "runs backwards" in log.problems[0][1] and log.problems[0][0] == 2
+    with pytest.raises(InputError, match=r"bad\.clf:2: stamp 0\.500000 runs backwards"):
+        list(CarmenLog(log_with(tmp_path, GOOD.format(t=0.5)), strict=True))
+
+
+def test_info_and_map_report_bad_lines(tmp_path, capsys):
+    from vmp.cli import main
+
+    clf = tmp_path / "lab.clf"
+    assert main(["simulate", "lab", "--scans", "60", "--out", str(clf), "-q"]) == 0
+    lines = clf.read_text().splitlines(keepends=True)
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("FLASER")) + 4
+    lines.insert(k, "FLASER 181 1.0 2.0\n")  # claims 181 ranges, holds 2
+    clf.write_text("".join(lines))
+    assert main(["info", str(clf)]) == 0
+    out = capsys.readouterr().out
+    assert "scans         60" in out and "1 skipped" in out and f"line {k + 1}" in out
+    assert main(["map", str(clf), "--out", str(tmp_path / "r"), "-q"]) == 0
+    assert main(["map", str(clf), "--out", str(tmp_path / "r"), "-q", "--strict"]) == 2
+    assert f"lab.clf:{k + 1}:" in capsys.readouterr().err

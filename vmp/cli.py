@@ -115,6 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="occupancy grid cell size in metres (default: 0.05)")
     mp.add_argument("--scans", type=_positive_int, help="stop after this many scans")
     mp.add_argument("--seed", type=_nonneg_int, help="simulation seed (scenarios only)")
+    mp.add_argument("--strict", action="store_true",
+                    help="stop at the first bad line of a recording (default: skip, count, "
+                    "report)")
     mp.add_argument("--rerun", metavar="TARGET",
                     help="watch in Rerun: a .rrd file to save, 'spawn' (native viewer) or "
                     "'serve' (web viewer on localhost)")
@@ -152,6 +155,15 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--delta", type=_positive_int, default=1,
                     help="RPE frame distance (default 1)")
     ev.set_defaults(func=cmd_evaluate)
+
+    inf = sub.add_parser(
+        "info", help="what a recording holds: format, scans, beams, field of view, duration",
+        description="Read a recording through and print its format, number of scans, beams, "
+        "field of view, maximum range, duration, whether it has odometry, and its bad lines.",
+        epilog="examples:\n  vmp info ../shared/data/intel/intel-first5505.clf.gz\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    inf.add_argument("recording", type=Path)
+    inf.set_defaults(func=cmd_info)
 
     sc = sub.add_parser("scenarios", help="list the built-in scenarios",
                         description="List the built-in scenarios with their descriptions.")
@@ -201,11 +213,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _open_source(text: str, seed: int | None, scans: int | None):
-    """Frames, beam geometry, their count (or None) and a name for a map source."""
+def _open_source(text: str, seed: int | None, scans: int | None, strict: bool = False):
+    """Frames, beam geometry, their count (or None), a name, and the log reader (or None)."""
     import itertools
 
-    from drivers.carmen import read_carmen
+    from drivers.carmen import CarmenLog
     from drivers.scenario import builtin_scenarios, load_scenario
     from drivers.simulator import Simulator
     from vmp.vector_map import BeamGeometry
@@ -221,12 +233,13 @@ def _open_source(text: str, seed: int | None, scans: int | None):
             raise InputError(str(exc)) from exc
         s = sim.sensor
         geom = BeamGeometry(s.beams, s.angle_min, s.angle_increment, s.max_range)
-        return iter(sim), geom, len(sim), scenario.name
+        return iter(sim), geom, len(sim), scenario.name, None
     if seed is not None:
         raise InputError("--seed applies to scenarios, not to recordings")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    frames = read_carmen(path)
+    log = CarmenLog(path, strict=strict)
+    frames = iter(log)
     first = next(frames, None)
     if first is None:
         raise InputError(f"{path}: no laser scans (FLASER or ROBOTLASER1 lines) in this file")
@@ -236,7 +249,7 @@ def _open_source(text: str, seed: int | None, scans: int | None):
     if scans is not None:
         stream = itertools.islice(stream, scans)
     name = path.name.split(".")[0]
-    return stream, geom, scans, name
+    return stream, geom, scans, name, log
 
 
 def cmd_map(args: argparse.Namespace) -> int:
@@ -258,7 +271,8 @@ def cmd_map(args: argparse.Namespace) -> int:
             config.scan_odometry, enabled=False))
     if not (args.resolution > 0):
         raise InputError(f"--resolution must be positive, got {args.resolution}")
-    frames, geom, total, name = _open_source(args.source, args.seed, args.scans)
+    frames, geom, total, name, log = _open_source(args.source, args.seed, args.scans,
+                                                  args.strict)
     view, where = None, ""
     if args.rerun:
         from viz.rerun_view import open_rerun
@@ -281,6 +295,11 @@ def cmd_map(args: argparse.Namespace) -> int:
     if not stamps:
         raise InputError(f"{args.source}: no scans to map")
     pipeline.finish()
+    if log is not None:
+        pipeline.stats["bad lines skipped"] = log.skipped
+        pipeline.stats["stamps running backwards"] = log.backwards
+        if log.problems and not args.quiet:
+            print(log.summary(), file=sys.stderr)
     out = new_results_dir(args.out, name)
     metrics = write_results(out, pipeline, np.array(stamps), args.source, args.resolution)
     if view is not None:
@@ -352,6 +371,50 @@ def cmd_export(args: argparse.Namespace) -> int:
         ms = data.milestones
         write_graph_json(args.graph, ms.ids, ms.poses, ms.stamps, data.graph.edges)
         print(f"graph: {args.graph} ({len(ms)} milestones, {len(data.graph.edges)} edges)")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    import math
+
+    from drivers.carmen import CarmenLog
+
+    path = args.recording
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    log = CarmenLog(path)
+    n = 0
+    first = last = None
+    beams = set()
+    t0, t1 = math.inf, -math.inf
+    odom_moves = False
+    returned = 0.0
+    for frame in log:  # one pass, constant memory
+        if first is None:
+            first = frame
+        elif not odom_moves and not np.array_equal(frame.odom, first.odom):
+            odom_moves = True
+        last = frame
+        n += 1
+        beams.add(frame.num_beams)
+        t0, t1 = min(t0, frame.stamp), max(t1, frame.stamp)
+        returned += float(frame.returned.mean())
+    if first is None:
+        raise InputError(f"{path}: no laser scans (FLASER or ROBOTLASER1 lines)")
+    fov = math.degrees(abs(first.angle_increment) * (first.num_beams - 1))
+    print(f"file          {path}")
+    print("format        CARMEN log" + (" (gzip)" if path.suffix == ".gz" else ""))
+    print(f"scans         {n}")
+    print(f"beams         {', '.join(str(b) for b in sorted(beams))}")
+    print(f"field of view {fov:.1f} deg from {math.degrees(first.angle_min):.1f} deg, step "
+          f"{math.degrees(first.angle_increment):.4f} deg")
+    print(f"max range     {first.max_range:g} m; {100 * returned / n:.0f} % of beams return")
+    print(f"duration      {t1 - t0:.1f} s ({t0:.3f} .. {t1:.3f})")
+    print(f"odometry      {'yes' if odom_moves else 'none (constant pose)'}; last "
+          f"({last.odom[0]:.2f}, {last.odom[1]:.2f}, {math.degrees(last.odom[2]):.1f} deg)")
+    print(f"bad lines     {log.skipped} skipped, {log.backwards} stamps running backwards"
+          + (f" (first: line {log.problems[0][0]}: {log.problems[0][1]})"
+             if log.problems else ""))
     return 0
 
 
