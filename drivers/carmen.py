@@ -20,7 +20,6 @@ or beyond the laser's maximum range means "no return".
 
 from __future__ import annotations
 
-import gzip
 import math
 import os
 from collections.abc import Iterable, Iterator
@@ -29,8 +28,8 @@ from typing import IO
 
 import numpy as np
 
+from drivers.textlog import LineLog
 from vmp import __version__
-from vmp.errors import InputError
 from vmp.fileio import atomic_write
 from vmp.types import ScanFrame, wrap_angle
 
@@ -139,15 +138,7 @@ def write_carmen(path: str | os.PathLike[str], frames: Iterable[ScanFrame], *,
     return w.count
 
 
-def _open_text(path: Path) -> IO[str]:
-    with open(path, "rb") as probe:
-        magic = probe.read(2)
-    if magic == b"\x1f\x8b":
-        return gzip.open(path, "rt", encoding="ascii", errors="replace")
-    return open(path, encoding="ascii", errors="replace")
-
-
-class CarmenLog:
+class CarmenLog(LineLog):
     """The scans of a CARMEN log (FLASER and ROBOTLASER1 lines), read lazily in file order.
 
     A bad line (fields that do not add up, a range that is NaN or negative, a pose that is
@@ -159,63 +150,27 @@ class CarmenLog:
     grow with the file: lines are read one at a time (gzip too).
     """
 
-    def __init__(self, path: str | os.PathLike[str], *, strict: bool = False) -> None:
-        self.path = Path(path)
-        self.strict = strict
-        self.problems: list[tuple[int, str]] = []  # (line, what), the first 1,000
-        self.skipped = 0
-        self.backwards = 0
-        self.scans = 0
+    format_name = "CARMEN log"
 
-    def _bad(self, no: int, what: str, skip: bool = True) -> None:
-        if self.strict:
-            raise InputError(f"{self.path}:{no}: {what}")
-        if skip:
-            self.skipped += 1
-        else:
-            self.backwards += 1
-        if len(self.problems) < 1000:
-            self.problems.append((no, what))
-
-    def __iter__(self) -> Iterator[ScanFrame]:
+    def _frames(self, lines: Iterator[tuple[int, str]]) -> Iterator[ScanFrame]:
         params: dict[str, str] = {}
-        last_stamp = -math.inf
-        self.problems, self.skipped, self.backwards, self.scans = [], 0, 0, 0
-        try:
-            f = _open_text(self.path)
-        except OSError as exc:
-            raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
-        with f:
-            for no, line in enumerate(f, start=1):
-                parts = line.split()
-                if not parts or parts[0].startswith("#"):
-                    continue
-                kind = parts[0]
-                if kind == "PARAM" and len(parts) >= 3:
-                    params[parts[1]] = parts[2]
-                    continue
-                if kind not in ("FLASER", "ROBOTLASER1"):
-                    continue
-                try:
-                    frame = _parse_laser(kind, parts, params, self.scans)
-                except (ValueError, IndexError) as exc:
-                    self._bad(no, f"bad {kind} line: {exc}")
-                    continue
-                if frame.stamp < last_stamp:
-                    self._bad(no, f"stamp {frame.stamp:.6f} runs backwards (latest before "
-                                  f"{last_stamp:.6f}); scan kept", skip=False)
-                last_stamp = max(last_stamp, frame.stamp)
-                self.scans += 1
-                yield frame
-
-    def summary(self) -> str:
-        """One line on what was skipped or odd, with the first few line numbers."""
-        if not self.problems:
-            return f"{self.path}: {self.scans} scans, no bad lines"
-        first = "; ".join(f"line {no}: {what}" for no, what in self.problems[:3])
-        more = "; ..." if len(self.problems) > 3 else ""
-        return (f"{self.path}: {self.scans} scans, {self.skipped} bad lines skipped, "
-                f"{self.backwards} stamps running backwards ({first}{more})")
+        for no, line in lines:
+            parts = line.split()
+            if not parts or parts[0].startswith("#"):
+                continue
+            kind = parts[0]
+            if kind == "PARAM" and len(parts) >= 3:
+                params[parts[1]] = parts[2]
+                continue
+            if kind not in ("FLASER", "ROBOTLASER1"):
+                continue
+            try:
+                frame = _parse_laser(kind, parts, params, self.scans)
+            except (ValueError, IndexError) as exc:
+                self._bad(no, f"bad {kind} line: {exc}")
+                continue
+            self._line = no
+            yield frame
 
 
 def read_carmen(path: str | os.PathLike[str], strict: bool = True) -> Iterator[ScanFrame]:

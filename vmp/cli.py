@@ -115,6 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="occupancy grid cell size in metres (default: 0.05)")
     mp.add_argument("--scans", type=_positive_int, help="stop after this many scans")
     mp.add_argument("--seed", type=_nonneg_int, help="simulation seed (scenarios only)")
+    mp.add_argument("--format", choices=["carmen", "dpslam", "breezyslam"],
+                    help="recording format (default: detected from the content)")
     mp.add_argument("--strict", action="store_true",
                     help="stop at the first bad line of a recording (default: skip, count, "
                     "report)")
@@ -163,6 +165,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n  vmp info ../shared/data/intel/intel-first5505.clf.gz\n",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     inf.add_argument("recording", type=Path)
+    inf.add_argument("--format", choices=["carmen", "dpslam", "breezyslam"],
+                     help="recording format (default: detected from the content)")
     inf.set_defaults(func=cmd_info)
 
     sc = sub.add_parser("scenarios", help="list the built-in scenarios",
@@ -213,17 +217,18 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _open_source(text: str, seed: int | None, scans: int | None, strict: bool = False):
+def _open_source(text: str, seed: int | None, scans: int | None, strict: bool = False,
+                 fmt: str | None = None):
     """Frames, beam geometry, their count (or None), a name, and the log reader (or None)."""
     import itertools
 
-    from drivers.carmen import CarmenLog
+    from drivers.formats import open_recording
     from drivers.scenario import builtin_scenarios, load_scenario
     from drivers.simulator import Simulator
     from vmp.vector_map import BeamGeometry
 
     path = Path(text)
-    is_log = path.suffix in (".clf", ".log", ".gz", ".txt") or (
+    is_log = fmt is not None or path.suffix in (".clf", ".log", ".gz", ".txt", ".dat") or (
         path.is_file() and path.suffix not in (".yaml", ".yml"))
     if not is_log or text in builtin_scenarios():
         scenario = load_scenario(text)
@@ -238,11 +243,11 @@ def _open_source(text: str, seed: int | None, scans: int | None, strict: bool = 
         raise InputError("--seed applies to scenarios, not to recordings")
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    log = CarmenLog(path, strict=strict)
+    log = open_recording(path, fmt, strict)
     frames = iter(log)
     first = next(frames, None)
     if first is None:
-        raise InputError(f"{path}: no laser scans (FLASER or ROBOTLASER1 lines) in this file")
+        raise InputError(f"{path}: no laser scans in this {log.format_name}")
     geom = BeamGeometry(first.num_beams, first.angle_min, first.angle_increment,
                         first.max_range)
     stream = itertools.chain([first], frames)
@@ -272,7 +277,7 @@ def cmd_map(args: argparse.Namespace) -> int:
     if not (args.resolution > 0):
         raise InputError(f"--resolution must be positive, got {args.resolution}")
     frames, geom, total, name, log = _open_source(args.source, args.seed, args.scans,
-                                                  args.strict)
+                                                  args.strict, args.format)
     view, where = None, ""
     if args.rerun:
         from viz.rerun_view import open_rerun
@@ -377,12 +382,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 def cmd_info(args: argparse.Namespace) -> int:
     import math
 
-    from drivers.carmen import CarmenLog
+    from drivers.formats import open_recording
 
     path = args.recording
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
-    log = CarmenLog(path)
+    log = open_recording(path, args.format)
     n = 0
     first = last = None
     beams = set()
@@ -400,10 +403,10 @@ def cmd_info(args: argparse.Namespace) -> int:
         t0, t1 = min(t0, frame.stamp), max(t1, frame.stamp)
         returned += float(frame.returned.mean())
     if first is None:
-        raise InputError(f"{path}: no laser scans (FLASER or ROBOTLASER1 lines)")
+        raise InputError(f"{path}: no laser scans in this {log.format_name}")
     fov = math.degrees(abs(first.angle_increment) * (first.num_beams - 1))
     print(f"file          {path}")
-    print("format        CARMEN log" + (" (gzip)" if path.suffix == ".gz" else ""))
+    print(f"format        {log.format_name}" + (" (gzip)" if path.suffix == ".gz" else ""))
     print(f"scans         {n}")
     print(f"beams         {', '.join(str(b) for b in sorted(beams))}")
     print(f"field of view {fov:.1f} deg from {math.degrees(first.angle_min):.1f} deg, step "

@@ -1,0 +1,61 @@
+"""Open a recording by its content (and name): CARMEN, DP-SLAM or BreezySLAM logs."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from drivers.breezyslam import BreezySlamLog
+from drivers.carmen import CarmenLog
+from drivers.dpslam import DpSlamLog
+from drivers.textlog import LineLog, open_text
+from vmp.errors import InputError
+
+__all__ = ["FORMATS", "detect_format", "open_recording"]
+
+FORMATS: dict[str, type[LineLog]] = {
+    "carmen": CarmenLog,
+    "dpslam": DpSlamLog,
+    "breezyslam": BreezySlamLog,
+}
+_CARMEN_WORDS = {"FLASER", "ROBOTLASER1", "RAWLASER1", "PARAM", "ODOM", "SYNC", "NEFF",
+                 "TRUEPOS"}
+
+
+def detect_format(path: Path) -> str:
+    """The format of a recording, from its first meaningful line."""
+    if path.suffix in (".bag", ".mcap", ".db3"):
+        raise InputError(f"{path}: ROS bags are not supported yet (issue 6); "
+                         f"known formats: {', '.join(FORMATS)}")
+    if path.suffix in (".g2o", ".zip"):
+        raise InputError(f"{path}: g2o files are not supported yet (issue 6); "
+                         f"known formats: {', '.join(FORMATS)}")
+    try:
+        with open_text(path) as f:
+            for _, line in zip(range(200), f, strict=False):
+                parts = line.split()
+                if not parts or parts[0].startswith("#"):
+                    continue
+                if parts[0] in _CARMEN_WORDS:
+                    return "carmen"
+                if parts[0] in ("Odometry", "Laser"):
+                    return "dpslam"
+                if len(parts) > 700 and parts[0].replace(".", "", 1).isdigit():
+                    return "breezyslam"
+                break
+    except (OSError, EOFError) as exc:
+        raise InputError(f"{path}: cannot read: {exc}") from exc
+    raise InputError(f"{path}: not a recording this program knows (formats: "
+                     f"{', '.join(FORMATS)}; choose one with --format)")
+
+
+def open_recording(path: str | os.PathLike[str], fmt: str | None = None,
+                   strict: bool = False) -> LineLog:
+    """A lazily read recording; ``fmt`` overrides the detection."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    name = fmt or detect_format(path)
+    if name not in FORMATS:
+        raise InputError(f"unknown format {name!r}; expected one of {', '.join(FORMATS)}")
+    return FORMATS[name](path, strict=strict)

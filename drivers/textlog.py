@@ -1,0 +1,80 @@
+"""Line-by-line recording readers: constant memory, bad lines skipped and reported or strict."""
+
+from __future__ import annotations
+
+import gzip
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO
+
+from vmp.errors import InputError
+from vmp.types import ScanFrame
+
+__all__ = ["LineLog", "open_text"]
+
+
+def open_text(path: Path) -> IO[str]:
+    """A text file, gunzipped on the fly when it is gzip (by its magic bytes, not its name)."""
+    with open(path, "rb") as probe:
+        magic = probe.read(2)
+    if magic == b"\x1f\x8b":
+        return gzip.open(path, "rt", encoding="ascii", errors="replace")
+    return open(path, encoding="ascii", errors="replace")
+
+
+class LineLog:
+    """A recording with one message per line, read lazily.
+
+    Subclasses turn lines into frames in :meth:`_frames`, calling :meth:`_bad` for a line
+    that cannot be used: it is skipped and recorded in :attr:`problems` with its line number,
+    or, with ``strict``, raises :class:`InputError` naming the file and line.
+    """
+
+    format_name = "text log"
+
+    def __init__(self, path: str | os.PathLike[str], *, strict: bool = False) -> None:
+        self.path = Path(path)
+        self.strict = strict
+        self.problems: list[tuple[int, str]] = []  # (line, what), the first 1,000
+        self.skipped = 0
+        self.backwards = 0
+        self.scans = 0
+
+    def _bad(self, no: int, what: str, skip: bool = True) -> None:
+        if self.strict:
+            raise InputError(f"{self.path}:{no}: {what}")
+        if skip:
+            self.skipped += 1
+        else:
+            self.backwards += 1
+        if len(self.problems) < 1000:
+            self.problems.append((no, what))
+
+    def __iter__(self) -> Iterator[ScanFrame]:
+        self.problems, self.skipped, self.backwards, self.scans = [], 0, 0, 0
+        try:
+            f = open_text(self.path)
+        except OSError as exc:
+            raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
+        with f:
+            last_stamp = -float("inf")
+            for frame in self._frames(enumerate(f, start=1)):
+                if frame.stamp < last_stamp:
+                    self._bad(self._line, f"stamp {frame.stamp:.6f} runs backwards (latest "
+                                          f"before {last_stamp:.6f}); scan kept", skip=False)
+                last_stamp = max(last_stamp, frame.stamp)
+                self.scans += 1
+                yield frame
+
+    def _frames(self, lines: Iterator[tuple[int, str]]) -> Iterator[ScanFrame]:
+        raise NotImplementedError
+
+    def summary(self) -> str:
+        """One line on what was skipped or odd, with the first few line numbers."""
+        if not self.problems:
+            return f"{self.path}: {self.scans} scans, no bad lines"
+        first = "; ".join(f"line {no}: {what}" for no, what in self.problems[:3])
+        more = "; ..." if len(self.problems) > 3 else ""
+        return (f"{self.path}: {self.scans} scans, {self.skipped} bad lines skipped, "
+                f"{self.backwards} stamps running backwards ({first}{more})")

@@ -1,0 +1,81 @@
+"""Readers of the classic recordings in ../shared/data, on small excerpts, and format detection."""
+
+import itertools
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.breezyslam import BreezySlamLog
+from drivers.dpslam import DpSlamLog
+from drivers.formats import detect_format, open_recording
+from drivers.textlog import open_text
+from vmp.errors import InputError
+
+DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+
+
+def excerpt(src: Path, dst: Path, lines: int) -> Path:
+    with open_text(src) as f:
+        dst.write_text("".join(itertools.islice(f, lines)))
+    return dst
+
+
+def test_dpslam_excerpt(tmp_path):
+    log = DpSlamLog(excerpt(DATA / "dpslam_duke_loop5" / "loop5.log", tmp_path / "l.log", 40))
+    frames = list(log)
+    assert len(frames) == 20 and log.skipped == 0
+    f = frames[0]
+    assert f.num_beams == 181 and math.isclose(f.angle_min, -math.pi / 2)
+    assert math.isclose(f.angle_increment, math.radians(1))
+    np.testing.assert_allclose(f.odom, [-2.424026, 4.800517, 2.590948])
+    assert math.isclose(f.ranges[0], 0.642)
+    assert frames[1].stamp > frames[0].stamp
+
+
+def test_dpslam_bad_lines(tmp_path):
+    p = tmp_path / "bad.log"
+    p.write_text("Odometry 0 0 0\nLaser 3 1 2 3\nOdometry 0 nan 0\nLaser 3 1 2 3\n"
+                 "Odometry 1 0 0\nLaser 4 1 2 3\nOdometry 2 0 0\nLaser 3 1 2 3\n")
+    log = DpSlamLog(p)
+    assert len(list(log)) == 2
+    assert [no for no, _ in log.problems] == [3, 4, 6]
+    with pytest.raises(InputError, match=r"bad\.log:3: bad Odometry line"):
+        list(DpSlamLog(p, strict=True))
+
+
+def test_breezyslam_excerpt_ticks_to_odometry(tmp_path):
+    log = BreezySlamLog(excerpt(DATA / "breezyslam_mines" / "exp1.dat", tmp_path / "e.dat",
+                                60))
+    frames = list(log)
+    assert len(frames) == 60 and log.skipped == 0
+    f = frames[0]
+    assert f.num_beams == 682 and math.isclose(f.field_of_view, math.radians(240) * 682 / 681)
+    assert 0.3 < f.returned.mean() < 0.8  # zeros are no return
+    assert np.nanmax(f.ranges[f.returned]) < 5.6
+    np.testing.assert_allclose(f.odom, [0.145, 0.0, 0.0], atol=1e-12)  # laser ahead of axle
+    steps = np.hypot(*np.diff(np.array([g.odom[:2] for g in frames]), axis=0).T)
+    assert steps.max() < 0.2  # a plausible 10 Hz wheel odometry, not ticks as metres
+    assert math.isclose(frames[1].stamp - frames[0].stamp, 0.1, abs_tol=0.02)
+
+
+@pytest.mark.parametrize("relpath, fmt", [
+    ("intel/intel-first5505.clf.gz", "carmen"),
+    ("radish_gmapping_corrected/fhw-corrected.log.gz", "carmen"),
+    ("dpslam_duke_loop5/loop5.log", "dpslam"),
+    ("breezyslam_mines/exp1.dat", "breezyslam"),
+])
+def test_formats_are_detected_by_content(relpath, fmt):
+    assert detect_format(DATA / relpath) == fmt
+
+
+def test_unknown_and_unsupported_files_get_one_clear_error(tmp_path):
+    junk = tmp_path / "notes.txt"
+    junk.write_text("hello world\n")
+    with pytest.raises(InputError, match="not a recording this program knows"):
+        open_recording(junk)
+    with pytest.raises(InputError, match="ROS bags are not supported yet"):
+        open_recording(DATA / "ccny_hokuyo_rosbag" / "demo.bag")
+    with pytest.raises(InputError, match="no such file"):
+        open_recording(tmp_path / "missing.clf")
