@@ -1,4 +1,4 @@
-"""Open a recording by its content (and name): CARMEN, DP-SLAM or BreezySLAM logs."""
+"""Open a recording by its content (and name): CARMEN, DP-SLAM, BreezySLAM logs, ROS 1 bags."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from pathlib import Path
 from drivers.breezyslam import BreezySlamLog
 from drivers.carmen import CarmenLog
 from drivers.dpslam import DpSlamLog
+from drivers.rosbag import RosBagLog
 from drivers.textlog import LineLog, open_text
 from vmp.errors import InputError
 
@@ -17,6 +18,7 @@ FORMATS: dict[str, type[LineLog]] = {
     "carmen": CarmenLog,
     "dpslam": DpSlamLog,
     "breezyslam": BreezySlamLog,
+    "rosbag": RosBagLog,
 }
 _CARMEN_WORDS = {"FLASER", "ROBOTLASER1", "RAWLASER1", "PARAM", "ODOM", "SYNC", "NEFF",
                  "TRUEPOS"}
@@ -24,9 +26,12 @@ _CARMEN_WORDS = {"FLASER", "ROBOTLASER1", "RAWLASER1", "PARAM", "ODOM", "SYNC", 
 
 def detect_format(path: Path) -> str:
     """The format of a recording, from its first meaningful line."""
-    if path.suffix in (".bag", ".mcap", ".db3"):
-        raise InputError(f"{path}: ROS bags are not supported yet (issue 6); "
+    if path.suffix in (".mcap", ".db3"):
+        raise InputError(f"{path}: ROS 2 bags and MCAP are not supported yet (issue 6); "
                          f"known formats: {', '.join(FORMATS)}")
+    with open(path, "rb") as probe:
+        if probe.read(13) == b"#ROSBAG V2.0\n":
+            return "rosbag"
     if path.suffix in (".g2o", ".zip"):
         raise InputError(f"{path}: g2o files are not supported yet (issue 6); "
                          f"known formats: {', '.join(FORMATS)}")

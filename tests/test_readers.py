@@ -65,6 +65,7 @@ def test_breezyslam_excerpt_ticks_to_odometry(tmp_path):
     ("radish_gmapping_corrected/fhw-corrected.log.gz", "carmen"),
     ("dpslam_duke_loop5/loop5.log", "dpslam"),
     ("breezyslam_mines/exp1.dat", "breezyslam"),
+    ("ccny_hokuyo_rosbag/demo.bag", "rosbag"),
 ])
 def test_formats_are_detected_by_content(relpath, fmt):
     assert detect_format(DATA / relpath) == fmt
@@ -75,7 +76,53 @@ def test_unknown_and_unsupported_files_get_one_clear_error(tmp_path):
     junk.write_text("hello world\n")
     with pytest.raises(InputError, match="not a recording this program knows"):
         open_recording(junk)
-    with pytest.raises(InputError, match="ROS bags are not supported yet"):
-        open_recording(DATA / "ccny_hokuyo_rosbag" / "demo.bag")
+    mcap = tmp_path / "x.mcap"
+    mcap.write_bytes(b"\x89MCAP0\r\n")
+    with pytest.raises(InputError, match="MCAP are not supported yet"):
+        open_recording(mcap)
     with pytest.raises(InputError, match="no such file"):
         open_recording(tmp_path / "missing.clf")
+
+
+BAG = DATA / "ccny_hokuyo_rosbag" / "demo.bag"
+
+
+def test_demo_bag_opens_and_yields_its_scans():
+    from drivers.rosbag import RosBagLog, bag_topics
+
+    assert bag_topics(BAG) == {"/scan": ("sensor_msgs/LaserScan", 360)}
+    log = RosBagLog(BAG)
+    frames = list(log)
+    assert len(frames) == 360 and log.skipped == 0
+    f = frames[0]
+    assert f.num_beams == 681 and f.odom is None
+    assert math.isclose(math.degrees(f.angle_increment * (f.num_beams - 1)), 239.1, abs_tol=0.1)
+    assert f.max_range == pytest.approx(5.6)
+    assert 35.0 < frames[-1].stamp - frames[0].stamp < 36.0
+
+
+def test_why_rosbags_alone_cannot_open_the_demo_bag():
+    """Its IndexData records claim count * 20 bytes of data but hold count * 12."""
+    import struct
+
+    from drivers.rosbag import _records
+
+    buf = BAG.read_bytes()
+    pos = 13
+    (hlen,) = struct.unpack_from("<I", buf, pos)
+    (dlen,) = struct.unpack_from("<I", buf, pos + 4 + hlen)
+    records = _records(buf, pos + 8 + hlen + dlen, len(buf))
+    chunk, _ = next(records)
+    index, data = next(records)  # the IndexData record that follows the first chunk
+    assert chunk[b"op"][0] == 5 and index[b"op"][0] == 4
+    (count,) = struct.unpack("<I", index[b"count"])
+    assert count == 278 and len(data) == count * 20  # rosbags expects count * 12
+
+
+def test_a_truncated_bag_gets_a_clear_error(tmp_path):
+    from drivers.rosbag import RosBagLog
+
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(BAG.read_bytes()[:300_000])
+    with pytest.raises(InputError, match=r"cut\.bag"):
+        list(RosBagLog(cut))

@@ -115,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="occupancy grid cell size in metres (default: 0.05)")
     mp.add_argument("--scans", type=_positive_int, help="stop after this many scans")
     mp.add_argument("--seed", type=_nonneg_int, help="simulation seed (scenarios only)")
-    mp.add_argument("--format", choices=["carmen", "dpslam", "breezyslam"],
+    mp.add_argument("--format", choices=["carmen", "dpslam", "breezyslam", "rosbag"],
                     help="recording format (default: detected from the content)")
     mp.add_argument("--strict", action="store_true",
                     help="stop at the first bad line of a recording (default: skip, count, "
@@ -165,7 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n  vmp info ../shared/data/intel/intel-first5505.clf.gz\n",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     inf.add_argument("recording", type=Path)
-    inf.add_argument("--format", choices=["carmen", "dpslam", "breezyslam"],
+    inf.add_argument("--format", choices=["carmen", "dpslam", "breezyslam", "rosbag"],
                      help="recording format (default: detected from the content)")
     inf.set_defaults(func=cmd_info)
 
@@ -228,7 +228,8 @@ def _open_source(text: str, seed: int | None, scans: int | None, strict: bool = 
     from vmp.vector_map import BeamGeometry
 
     path = Path(text)
-    is_log = fmt is not None or path.suffix in (".clf", ".log", ".gz", ".txt", ".dat") or (
+    is_log = fmt is not None or path.suffix in (".clf", ".log", ".gz", ".txt", ".dat",
+                                                ".bag") or (
         path.is_file() and path.suffix not in (".yaml", ".yml"))
     if not is_log or text in builtin_scenarios():
         scenario = load_scenario(text)
@@ -391,11 +392,14 @@ def cmd_info(args: argparse.Namespace) -> int:
     beams = set()
     t0, t1 = math.inf, -math.inf
     odom_moves = False
+    has_odom = True
     returned = 0.0
     for frame in log:  # one pass, constant memory
+        if frame.odom is None:
+            has_odom = False
         if first is None:
             first = frame
-        elif not odom_moves and not np.array_equal(frame.odom, first.odom):
+        elif has_odom and not odom_moves and not np.array_equal(frame.odom, first.odom):
             odom_moves = True
         last = frame
         n += 1
@@ -413,8 +417,11 @@ def cmd_info(args: argparse.Namespace) -> int:
           f"{math.degrees(first.angle_increment):.4f} deg")
     print(f"max range     {first.max_range:g} m; {100 * returned / n:.0f} % of beams return")
     print(f"duration      {t1 - t0:.1f} s ({t0:.3f} .. {t1:.3f})")
-    print(f"odometry      {'yes' if odom_moves else 'none (constant pose)'}; last "
-          f"({last.odom[0]:.2f}, {last.odom[1]:.2f}, {math.degrees(last.odom[2]):.1f} deg)")
+    if not has_odom:
+        print("odometry      none: vmp map registers the scans alone")
+    else:
+        print(f"odometry      {'yes' if odom_moves else 'none (constant pose)'}; last "
+              f"({last.odom[0]:.2f}, {last.odom[1]:.2f}, {math.degrees(last.odom[2]):.1f} deg)")
     print(f"bad lines     {log.skipped} skipped, {log.backwards} stamps running backwards"
           + (f" (first: line {log.problems[0][0]}: {log.problems[0][1]})"
              if log.problems else ""))

@@ -135,7 +135,7 @@ class Pipeline:
             self.filter = PoseFilter(start, np.diag(np.square(self.config.initial_sigma)),
                                      self.config.motion)
         else:
-            wheel = relative(self._last_odom, odom) if frame.odom is not None else np.zeros(3)
+            wheel = relative(self._last_odom, odom) if frame.odom is not None else None
             u, q = self.scan_odometry.increment(frame.points(), wheel)
             self.filter.predict(u, q)
             th = self.filter.pose[2]

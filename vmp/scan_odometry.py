@@ -67,15 +67,21 @@ class ScanOdometry:
             return 1.0
         return self._dist_reg / self._dist_wheel
 
-    def increment(self, points: FloatArray, wheel: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def increment(self, points: FloatArray,
+                  wheel: FloatArray | None) -> tuple[FloatArray, FloatArray]:
         """The increment since the last scan (its frame) and its covariance.
 
         ``points`` are the scan's hit end points in its own frame; ``wheel`` is the wheel
-        odometry increment (zeros when there is none).
+        odometry increment, or None when the source has no odometry (then registration alone
+        moves the robot, from a standstill guess that it is free to overrule).
         """
         c = self.config
-        wheel = np.array([wheel[0] * self.scale, wheel[1] * self.scale, wheel[2]])
-        q_wheel = motion_covariance(wheel, self.noise)
+        if wheel is None:
+            wheel = np.zeros(3)
+            q_wheel = np.diag([1.0, 1.0, 1.0])  # no odometry: "somewhere within a metre"
+        else:
+            wheel = np.array([wheel[0] * self.scale, wheel[1] * self.scale, wheel[2]])
+            q_wheel = motion_covariance(wheel, self.noise)
         if not c.enabled or len(points) < c.min_points:
             return wheel, q_wheel
         if self._key is None:
@@ -92,7 +98,8 @@ class ScanOdometry:
             u, q = wheel, q_wheel
         else:
             self.refined += 1
-            self._learn_scale(wheel, u_reg, reg.covariance)
+            if q_wheel[0, 0] < 1.0:
+                self._learn_scale(wheel, u_reg, reg.covariance)
             # Fuse the two increments by information; registration constrains what it sees.
             info_w = np.linalg.inv(q_wheel)
             info_r = np.linalg.inv(reg.covariance)
