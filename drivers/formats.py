@@ -20,8 +20,10 @@ FORMATS: dict[str, type[LineLog]] = {
     "breezyslam": BreezySlamLog,
     "rosbag": RosBagLog,
 }
+# Words that open a CARMEN log line; a g2o file with ROBOTLASER1 lines (MIT Killian) reads
+# the same way, its VERTEX and EDGE lines skipped.
 _CARMEN_WORDS = {"FLASER", "ROBOTLASER1", "RAWLASER1", "PARAM", "ODOM", "SYNC", "NEFF",
-                 "TRUEPOS"}
+                 "TRUEPOS", "VERTEX_SE2", "EDGE_SE2"}
 
 
 def detect_format(path: Path) -> str:
@@ -32,9 +34,6 @@ def detect_format(path: Path) -> str:
     with open(path, "rb") as probe:
         if probe.read(13) == b"#ROSBAG V2.0\n":
             return "rosbag"
-    if path.suffix in (".g2o", ".zip"):
-        raise InputError(f"{path}: g2o files are not supported yet (issue 6); "
-                         f"known formats: {', '.join(FORMATS)}")
     try:
         with open_text(path) as f:
             for _, line in zip(range(200), f, strict=False):

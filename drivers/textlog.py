@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import gzip
+import io
 import os
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
@@ -15,11 +17,22 @@ __all__ = ["LineLog", "open_text"]
 
 
 def open_text(path: Path) -> IO[str]:
-    """A text file, gunzipped on the fly when it is gzip (by its magic bytes, not its name)."""
+    """A text file, unpacked on the fly when it is gzip or a zip archive (by magic bytes).
+
+    From a zip archive the largest member that is not macOS metadata is read.
+    """
     with open(path, "rb") as probe:
-        magic = probe.read(2)
-    if magic == b"\x1f\x8b":
+        magic = probe.read(4)
+    if magic[:2] == b"\x1f\x8b":
         return gzip.open(path, "rt", encoding="ascii", errors="replace")
+    if magic == b"PK\x03\x04":
+        archive = zipfile.ZipFile(path)
+        members = [m for m in archive.infolist()
+                   if not m.is_dir() and not m.filename.startswith("__MACOSX")]
+        if not members:
+            raise InputError(f"{path}: an empty zip archive")
+        member = max(members, key=lambda m: m.file_size)
+        return io.TextIOWrapper(archive.open(member), encoding="ascii", errors="replace")
     return open(path, encoding="ascii", errors="replace")
 
 

@@ -126,3 +126,17 @@ def test_a_truncated_bag_gets_a_clear_error(tmp_path):
     cut.write_bytes(BAG.read_bytes()[:300_000])
     with pytest.raises(InputError, match=r"cut\.bag"):
         list(RosBagLog(cut))
+
+
+def test_killian_g2o_zip_reads_its_robotlaser_lines():
+    from drivers.carmen import CarmenLog
+
+    path = DATA / "mit_killian" / "killian.g2o.zip"
+    assert detect_format(path) == "carmen"
+    frames = list(itertools.islice(CarmenLog(path), 30))  # lazily, straight from the zip
+    assert len(frames) == 30
+    f = frames[0]
+    assert f.num_beams == 180 and f.max_range == 50.0
+    assert math.isclose(f.angle_min, -math.pi / 2, abs_tol=1e-5)
+    assert math.isclose(f.angle_increment, math.radians(1), abs_tol=1e-5)
+    assert np.isfinite(f.odom).all() and frames[-1].stamp > f.stamp
