@@ -278,12 +278,22 @@ class MilestoneManager:
         """Record a milestone here if one is due and the place is distinctive; its id or None."""
         if not self.due(pose):
             return None
+        if not self._has_returns(ranges, max_range):
+            self.skipped.few_returns += 1
+            return None
         sig = self.signature(ranges, angle_min, angle_increment, max_range)
         reason = self.distinctiveness(sig, ranges, pose, max_range)
         if reason is not None:
             setattr(self.skipped, reason, getattr(self.skipped, reason) + 1)
             return None
         return self._add(pose, sig, ranges, stamp)
+
+    def _has_returns(self, ranges: NDArray, max_range: float) -> bool:
+        """Whether any beam returns within the signature's reach."""
+        r = np.asarray(ranges, dtype=np.float64)
+        reach = min(float(max_range), self.config.clamp_range)
+        with np.errstate(invalid="ignore"):
+            return bool((np.isfinite(r) & (r > 0) & (r < reach)).any())
 
     def add(self, pose: FloatArray, ranges: NDArray, angle_min: float,
             angle_increment: float, max_range: float, stamp: float = 0.0) -> int:
@@ -356,8 +366,8 @@ class MilestoneManager:
         gate on position (widened by ``recognition_radius``) are not considered, nor are matches
         whose implied heading fails the heading gate. Without them the search is global.
         """
-        if len(self) == 0:
-            return []
+        if len(self) == 0 or not self._has_returns(ranges, max_range):
+            return []  # nothing to compare: a scan that sees nothing within reach
         sig = self.signature(ranges, angle_min, angle_increment, max_range)
         c = self.config
         rows = np.arange(len(self))

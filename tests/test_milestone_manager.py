@@ -203,3 +203,14 @@ def test_store_errors_are_clear(tmp_path):
     with pytest.raises(StoreError, match="sizes disagree"):
         load_milestones(bad)
     assert zipfile.is_zipfile(path)
+
+
+def test_a_scan_that_sees_nothing_within_reach_is_neither_recorded_nor_matched():
+    mgr = MilestoneManager(ManagerConfig(clamp_range=15.0))
+    r = np.full(181, 3.0)
+    r[40:80] = 2.0
+    mgr.add([0, 0, 0], r, **dict(GEOM, max_range=80.0))
+    far = np.full(181, 40.0)  # outdoors: every return beyond the signature's 15 m reach
+    assert mgr.query(far, **dict(GEOM, max_range=80.0)) == []
+    assert mgr.consider([50, 0, 0], far, **dict(GEOM, max_range=80.0)) is None
+    assert mgr.skipped.few_returns == 1
