@@ -173,10 +173,10 @@ class CarmenLog(LineLog):
             yield frame
 
 
-def read_carmen(path: str | os.PathLike[str], strict: bool = True) -> Iterator[ScanFrame]:
-    """Iterate the scans of a CARMEN log; by default the first bad line raises.
+def read_carmen(path: str | os.PathLike[str], strict: bool = False) -> Iterator[ScanFrame]:
+    """Iterate the scans of a CARMEN log, skipping bad lines (``strict``: the first raises).
 
-    Use :class:`CarmenLog` to skip and count bad lines instead.
+    Use :class:`CarmenLog` itself to see what was skipped.
     """
     return iter(CarmenLog(path, strict=strict))
 
