@@ -173,3 +173,19 @@ def test_edge_kinds(kind):
     assert g.add(0, 1, np.zeros(3), np.eye(3), kind).kind == kind
     with pytest.raises(ValueError):
         g.add(0, 1, np.zeros(3), np.eye(3), "teleport")
+
+
+def test_marginals_equal_the_dense_inverse_blocks():
+    from scipy.sparse import csr_matrix
+    from scipy.sparse import random as sparse_random
+
+    from vmp.pose_graph import _marginals
+
+    n = 40
+    m = 3 * (n - 1)
+    J = sparse_random(200, m, density=0.05, random_state=2) + csr_matrix(np.eye(200, m))
+    cov = np.linalg.inv((J.T @ J).toarray() + np.eye(m) * 1e-9)
+    got = _marginals(J, n, block=7)  # blocks that do not divide the node count
+    idx = np.arange(n - 1)[:, None] * 3 + np.arange(3)
+    np.testing.assert_allclose(got[1:], cov[idx[:, :, None], idx[:, None, :]], atol=1e-10)
+    assert np.all(got[0] == 0)
