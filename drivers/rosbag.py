@@ -126,11 +126,13 @@ def _typestore(messages: list[tuple[str, str, str]]):
 
 def bag_topics(path: str | os.PathLike[str]) -> dict[str, tuple[str, int]]:
     """Topic -> (message type, number of messages)."""
-    path = Path(path)
+    return _count_topics(_ros1_messages(Path(path)))
+
+
+def _count_topics(messages) -> dict[str, tuple[str, int]]:
     out: dict[str, tuple[str, int]] = {}
-    for topic, msgtype, _, _, _ in _ros1_messages(path):
-        t, n = out.get(topic, (msgtype, 0))
-        out[topic] = (t, n + 1)
+    for topic, msgtype, _, _, _ in messages:
+        out[topic] = (msgtype, out.get(topic, (msgtype, 0))[1] + 1)
     return out
 
 
@@ -150,7 +152,8 @@ class RosBagLog(LineLog):
 
     def __iter__(self) -> Iterator[ScanFrame]:
         self.problems, self.skipped, self.backwards, self.scans = [], 0, 0, 0
-        topics = bag_topics(self.path)
+        msgs = list(_ros1_messages(self.path))  # a bag is read whole, once; they are small
+        topics = _count_topics(msgs)
         scans = [t for t, (m, _) in topics.items() if m in SCAN_TYPES]
         odoms = [t for t, (m, _) in topics.items() if m in ODOM_TYPES]
         scan_topic = self.scan_topic or (scans[0] if scans else None)
@@ -159,7 +162,6 @@ class RosBagLog(LineLog):
                              f"{' ' + repr(scan_topic) if scan_topic else ''}; topics: "
                              f"{', '.join(sorted(topics)) or 'none'}")
         odom_topic = self.odom_topic or (odoms[0] if odoms else None)
-        msgs = list(_ros1_messages(self.path))  # a bag is read whole; they are small
         store = _typestore([(t, m, d) for t, m, d, _, _ in msgs])
         odom_t, odom_p = [], []
         if odom_topic is not None:
