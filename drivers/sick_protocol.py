@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MAX_PAYLOAD", "Telegram", "TelegramReceiver", "decode_scan", "request",
-           "sick_crc"]
+__all__ = ["HOST", "LMS", "MAX_PAYLOAD", "Telegram", "TelegramReceiver", "decode_scan",
+           "encode_scan", "reply", "request", "sick_crc"]
 
 STX = 0x02
 HOST, LMS = 0x00, 0x80
@@ -42,6 +42,12 @@ def request(payload: bytes, address: int = HOST) -> bytes:
     return head + struct.pack("<H", sick_crc(head))
 
 
+def reply(payload: bytes, status: int = 0x10, ack: bool = True) -> bytes:
+    """What the LMS sends for ``payload`` (reply code and data): ACK, telegram with status, CRC."""
+    body = request(payload + bytes([status]), address=LMS)
+    return (bytes([ACK]) if ack else b"") + body
+
+
 @dataclass(frozen=True)
 class Telegram:
     """A received telegram whose CRC checked."""
@@ -49,7 +55,7 @@ class Telegram:
     address: int
     command: int
     data: bytes  # between the command and the status byte
-    status: int
+    status: int  # -1 in a request (requests carry none)
 
 
 class TelegramReceiver:
@@ -57,10 +63,13 @@ class TelegramReceiver:
 
     It skips bytes until ``02 80``, reads LEN, LEN bytes and the CRC, and on a bad CRC or an
     impossible LEN drops the frame and starts again one byte after the ``02``. Counters say
-    what was dropped.
+    what was dropped. With ``address=HOST`` it reads the host's requests instead (``02 00``,
+    no status byte), as a device does.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, address: int = LMS) -> None:
+        self.address = address
+        self._sync = bytes([STX, address])
         self._buf = bytearray()
         self.crc_errors = 0
         self.bad_lengths = 0
@@ -72,7 +81,7 @@ class TelegramReceiver:
         self._buf += data
         out = []
         while True:
-            start = self._buf.find(bytes([STX, LMS]))
+            start = self._buf.find(self._sync)
             if start < 0:
                 keep = 1 if self._buf[-1:] == bytes([STX]) else 0
                 self._count_skipped(self._buf[:len(self._buf) - keep])
@@ -83,7 +92,7 @@ class TelegramReceiver:
             if len(self._buf) < 4:
                 return out
             (length,) = struct.unpack_from("<H", self._buf, 2)
-            if length < 2 or length > MAX_PAYLOAD:
+            if length < (2 if self.address == LMS else 1) or length > MAX_PAYLOAD:
                 self.bad_lengths += 1
                 del self._buf[:1]
                 continue
@@ -97,7 +106,10 @@ class TelegramReceiver:
                 del self._buf[:1]
                 continue
             del self._buf[:total]
-            out.append(Telegram(frame[1], frame[4], frame[5:3 + length], frame[3 + length]))
+            if self.address == LMS:
+                out.append(Telegram(frame[1], frame[4], frame[5:3 + length], frame[3 + length]))
+            else:
+                out.append(Telegram(frame[1], frame[4], frame[5:4 + length], -1))
 
     def _count_skipped(self, junk: bytes | bytearray) -> None:
         self.acks += junk.count(ACK)
@@ -126,3 +138,12 @@ def decode_scan(telegram: Telegram) -> tuple[np.ndarray, float]:
     ranges = raw.astype(np.float64) * unit
     ranges[(raw == 0) | (raw >= 0x1FFF)] = np.inf
     return ranges, unit
+
+
+def encode_scan(values: np.ndarray, units_code: int) -> bytes:
+    """The payload of a ``B0`` telegram (reply code, count word, values) for raw ``values``."""
+    v = np.asarray(values)
+    if v.ndim != 1 or not 0 < v.size <= 0x3FF:
+        raise ValueError(f"a scan holds 1 to 1023 values, got shape {v.shape}")
+    count = v.size | (units_code << 14)
+    return bytes([0xB0]) + struct.pack("<H", count) + v.astype("<u2").tobytes()
