@@ -10,6 +10,11 @@ Line formats (one message per line, ``#`` starts a comment)::
         n r_1 .. r_n n_rem rem_1 .. laser_x laser_y laser_theta robot_x robot_y robot_theta
         tv rv forward_safety_dist side_safety_dist turn_axis
         ipc_timestamp ipc_hostname logger_timestamp
+    RAWLASER1 laser_type start_angle fov angular_resolution max_range accuracy remission_mode
+        n r_1 .. r_n n_rem rem_1 .. ipc_timestamp ipc_hostname logger_timestamp
+
+A RAWLASER line carries no pose: its frame has no odometry (a live run without a pose feed
+is recorded this way). RAWLASER1 to RAWLASER4 name the laser; all read the same.
 
 FLASER assumes a scan centred on the heading whose first and last beams lie at -fov/2 and
 +fov/2, fov from the ``laser_front_laser_fov`` parameter (default 180 degrees): n beams are
@@ -33,7 +38,7 @@ from vmp import __version__
 from vmp.fileio import atomic_write
 from vmp.types import ScanFrame, wrap_angle
 
-__all__ = ["CarmenLog", "CarmenWriter", "read_carmen", "write_carmen"]
+__all__ = ["CarmenLog", "CarmenWriter", "parse_laser_line", "read_carmen", "write_carmen"]
 
 HOST = "vmp"
 
@@ -61,7 +66,8 @@ class CarmenWriter:
         self._f.write("# CARMEN Logfile\n# file format is one message per line\n")
         self._f.write("# message_name [message contents] ipc_timestamp ipc_hostname "
                       "logger_timestamp\n"
-                      "# message formats defined: PARAM ODOM FLASER ROBOTLASER1\n")
+                      "# message formats defined: PARAM ODOM FLASER ROBOTLASER1 RAWLASER1\n")
+        self.params: dict[str, str] = {}
         self._f.write(f"# written by vmp-slam {__version__}{': ' + comment if comment else ''}\n")
         self.count = 0
 
@@ -76,16 +82,33 @@ class CarmenWriter:
             ("laser_front_laser_resolution", f"{math.degrees(inc):.6g}"),
         ):
             self._f.write(f"PARAM {name} {value} {HOST} {frame.stamp:.6f}\n")
+            self.params[name] = value
 
-    def write(self, frame: ScanFrame) -> None:
-        if frame.odom is None:
-            raise ValueError("a CARMEN log needs odometry in every frame")
+    def flush(self) -> None:
+        self._f.flush()
+
+    def write(self, frame: ScanFrame) -> str:
+        """Write the frame (and its ODOM line); returns the laser line as written.
+
+        A frame without odometry becomes a RAWLASER1 line.
+        """
         if self._geometry is None:
             self._params(frame)
         elif self._geometry != (frame.num_beams, frame.angle_min, frame.angle_increment,
                                 frame.max_range):
             raise ValueError(f"frame {frame.index}: laser geometry changed within the log")
         t = frame.stamp
+        r = np.where(frame.returned, frame.ranges, frame.max_range)
+        ranges = " ".join(np.char.mod("%.3f", r).tolist())
+        stamp = f"{t:.6f} {HOST} {t:.6f}"
+        fov = frame.angle_increment * (frame.num_beams - 1)
+        head = (f"0 {frame.angle_min:.9f} {fov:.9f} {frame.angle_increment:.9f} "
+                f"{frame.max_range:g} 0.01 0 {frame.num_beams} {ranges} 0")
+        if frame.odom is None:
+            line = f"RAWLASER1 {head} {stamp}\n"
+            self._f.write(line)
+            self.count += 1
+            return line
         x, y, th = frame.odom
         tv = rv = 0.0
         if self._last is not None and t > self._last[0]:
@@ -95,20 +118,14 @@ class CarmenWriter:
             rv = float(wrap_angle(th - prev[2])) / dt
         self._last = (t, frame.odom)
         pose = f"{x:.6f} {y:.6f} {th:.6f}"
-        stamp = f"{t:.6f} {HOST} {t:.6f}"
         self._f.write(f"ODOM {pose} {tv:.6f} {rv:.6f} 0.000000 {stamp}\n")
-        r = np.where(frame.returned, frame.ranges, frame.max_range)
-        ranges = " ".join(np.char.mod("%.3f", r).tolist())
         if self._flaser:
-            self._f.write(f"FLASER {frame.num_beams} {ranges} {pose} {pose} {stamp}\n")
+            line = f"FLASER {frame.num_beams} {ranges} {pose} {pose} {stamp}\n"
         else:
-            fov = frame.angle_increment * (frame.num_beams - 1)
-            self._f.write(
-                f"ROBOTLASER1 0 {frame.angle_min:.9f} {fov:.9f} {frame.angle_increment:.9f} "
-                f"{frame.max_range:g} 0.01 0 {frame.num_beams} {ranges} 0 {pose} {pose} "
-                f"{tv:.6f} {rv:.6f} 0 0 0 {stamp}\n"
-            )
+            line = f"ROBOTLASER1 {head} {pose} {pose} {tv:.6f} {rv:.6f} 0 0 0 {stamp}\n"
+        self._f.write(line)
         self.count += 1
+        return line
 
     def close(self, ok: bool = True) -> None:
         """Finish the file; with ``ok=False`` (an error) an atomic writer discards it."""
@@ -162,7 +179,7 @@ class CarmenLog(LineLog):
             if kind == "PARAM" and len(parts) >= 3:
                 params[parts[1]] = parts[2]
                 continue
-            if kind not in ("FLASER", "ROBOTLASER1"):
+            if kind not in _LASER_WORDS:
                 continue
             try:
                 frame = _parse_laser(kind, parts, params, self.scans)
@@ -181,7 +198,25 @@ def read_carmen(path: str | os.PathLike[str], strict: bool = False) -> Iterator[
     return iter(CarmenLog(path, strict=strict))
 
 
+_LASER_WORDS = ("FLASER", "ROBOTLASER1", "RAWLASER1", "RAWLASER2", "RAWLASER3", "RAWLASER4")
+
+
+def parse_laser_line(line: str, params: dict[str, str], index: int = -1) -> ScanFrame:
+    """The frame of one FLASER, ROBOTLASER1 or RAWLASER line (``params``: the PARAMs so far).
+
+    Raises ValueError on a line that does not parse.
+    """
+    parts = line.split()
+    if not parts or parts[0] not in _LASER_WORDS:
+        raise ValueError(f"not a laser line: {line[:40]!r}")
+    try:
+        return _parse_laser(parts[0], parts, params, index)
+    except IndexError as exc:
+        raise ValueError(f"bad {parts[0]} line: too few fields") from exc
+
+
 def _parse_laser(kind: str, parts: list[str], params: dict[str, str], index: int) -> ScanFrame:
+    odom: np.ndarray | None
     if kind == "FLASER":
         n = int(parts[1])
         if n < 1:
@@ -198,6 +233,18 @@ def _parse_laser(kind: str, parts: list[str], params: dict[str, str], index: int
         inc = fov / (n - 1) if n > 1 else fov
         angle_min = -fov / 2.0
         max_range = float(params.get("robot_front_laser_max", "81.83"))
+    elif kind.startswith("RAWLASER"):
+        angle_min, _fov, inc, max_range = (float(v) for v in parts[2:6])
+        n = int(parts[8])
+        ranges = np.array(parts[9:9 + n], dtype=np.float64)
+        n_rem = int(parts[9 + n])
+        tail = parts[10 + n + n_rem:]
+        if len(ranges) != n or len(tail) != 3:
+            raise ValueError(f"declares {n} ranges and {n_rem} remissions but the field "
+                             "count does not match")
+        poses = np.zeros(3)
+        odom = None
+        stamp = float(tail[0])
     else:
         angle_min, _fov, inc, max_range = (float(v) for v in parts[2:6])
         n = int(parts[8])

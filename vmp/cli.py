@@ -169,6 +169,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="recording format (default: detected from the content)")
     inf.set_defaults(func=cmd_info)
 
+    from vmp.cli_live import add_live_parser
+
+    add_live_parser(sub)
+
     sc = sub.add_parser("scenarios", help="list the built-in scenarios",
                         description="List the built-in scenarios with their descriptions.")
     sc.set_defaults(func=cmd_scenarios)

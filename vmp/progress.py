@@ -19,6 +19,7 @@ class Progress:
         self.stream = stream if stream is not None else sys.stderr
         self.enabled = self.stream.isatty() if enabled is None else enabled
         self.done = 0
+        self.status = ""  # appended to the line (errors so far, for instance)
         self.start = time.perf_counter()
         self._drawn = 0.0
 
@@ -45,7 +46,8 @@ class Progress:
             bar = f"[{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total}"
         else:
             bar = f"{self.done}"
-        self.stream.write(f"\r{self.label} {bar} {self.unit} {self.rate:,.0f}/s")
+        extra = f"  {self.status}" if self.status else ""
+        self.stream.write(f"\r{self.label} {bar} {self.unit} {self.rate:,.0f}/s{extra}\033[K")
         self.stream.flush()
 
     def close(self) -> None:

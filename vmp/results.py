@@ -92,8 +92,11 @@ def export_all(out: Path, vmap, poses: np.ndarray, milestones, graph, resolution
 
 
 def write_results(out: Path, pipeline: Pipeline, stamps: np.ndarray, source: str,
-                  resolution: float = 0.05) -> dict:
-    """Write every output of a finished run into ``out``; returns the metrics."""
+                  resolution: float = 0.05, extra: dict | None = None) -> dict:
+    """Write every output of a finished run into ``out``; returns the metrics.
+
+    ``extra`` entries (plain values) join the metrics after the source.
+    """
     from vmp.config import config_to_dict
 
     mapping_time = pipeline.wall_time
@@ -104,6 +107,7 @@ def write_results(out: Path, pipeline: Pipeline, stamps: np.ndarray, source: str
     write_tum(out / "online.tum", stamps, online)
     write_tum(out / "odometry.tum", stamps, odom)
     metrics: dict = {"source": source, "version": __version__}
+    metrics.update(extra or {})
     metrics.update(pipeline.summary())
     truth = pipeline.truth
     if all(t is not None for t in truth) and len(truth) > 2:
