@@ -1,4 +1,4 @@
-"""Open a recording by its content (and name): CARMEN, DP-SLAM, BreezySLAM logs, ROS 1 bags."""
+"""Open a recording by its content (and name): CARMEN, DP-SLAM, BreezySLAM logs, ROS bags."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 from drivers.breezyslam import BreezySlamLog
 from drivers.carmen import CarmenLog
 from drivers.dpslam import DpSlamLog
-from drivers.rosbag import RosBagLog
+from drivers.rosbag import RosBagLog, is_ros2_bag
 from drivers.textlog import LineLog, open_text
 from vmp.errors import InputError
 
@@ -28,9 +28,10 @@ _CARMEN_WORDS = {"FLASER", "ROBOTLASER1", "RAWLASER1", "PARAM", "ODOM", "SYNC", 
 
 def detect_format(path: Path) -> str:
     """The format of a recording, from its first meaningful line."""
-    if path.suffix in (".mcap", ".db3"):
-        raise InputError(f"{path}: ROS 2 bags and MCAP are not supported yet (issue 6); "
-                         f"known formats: {', '.join(FORMATS)}")
+    if is_ros2_bag(path):
+        return "rosbag"
+    if path.is_dir():
+        raise InputError(f"{path}: a folder, and not a ROS 2 bag (no metadata.yaml)")
     with open(path, "rb") as probe:
         if probe.read(13) == b"#ROSBAG V2.0\n":
             return "rosbag"
@@ -54,12 +55,18 @@ def detect_format(path: Path) -> str:
 
 
 def open_recording(path: str | os.PathLike[str], fmt: str | None = None,
-                   strict: bool = False) -> LineLog:
-    """A lazily read recording; ``fmt`` overrides the detection."""
+                   strict: bool = False, *, scan_topic: str | None = None,
+                   odom_topic: str | None = None) -> LineLog:
+    """A lazily read recording; ``fmt`` overrides the detection; topics apply to bags."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"{path}: no such file")
     name = fmt or detect_format(path)
     if name not in FORMATS:
         raise InputError(f"unknown format {name!r}; expected one of {', '.join(FORMATS)}")
+    if name == "rosbag":
+        return RosBagLog(path, strict=strict, scan_topic=scan_topic, odom_topic=odom_topic)
+    if scan_topic or odom_topic:
+        raise InputError(f"{path}: --scan-topic and --odom-topic apply to ROS bags, "
+                         f"not to a {FORMATS[name].format_name}")
     return FORMATS[name](path, strict=strict)

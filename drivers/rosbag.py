@@ -1,22 +1,29 @@
-"""ROS bags (ROS 1, ROS 2, MCAP) through the ``rosbags`` library: LaserScan plus Odometry.
+"""ROS bags (ROS 1, ROS 2 with sqlite3 or MCAP storage, bare MCAP files): LaserScan + odometry.
 
-Scans come from a ``sensor_msgs/LaserScan`` topic, odometry from a ``nav_msgs/Odometry``
-topic when there is one (the pose nearest in time to each scan); without odometry the
-frames carry none and the mapper registers scans alone. Readings outside
+Scans come from a ``sensor_msgs/LaserScan`` topic; odometry from a ``nav_msgs/Odometry``
+topic or from ``tf`` (the transforms from an odometry frame to the robot's base frame),
+interpolated to each scan's stamp. Without either the frames carry no odometry and the
+mapper registers scans alone. Topics are chosen with ``scan_topic`` / ``odom_topic`` or
+detected (the first LaserScan topic; an Odometry topic, else ``/tf``). Readings outside
 ``[range_min, range_max]`` are beams without a return.
+
+The bag is read twice, lazily: once for the odometry poses (three numbers a message), once
+for the scans, which are yielded as they are read, so memory does not grow with the bag.
 
 Some early ROS 1 bags (the CCNY ``demo.bag`` of 2010) cannot be opened by ``rosbags``: their
 IndexData records declare a data length of ``count * 20`` bytes while holding ``count``
 entries of 12 bytes (a bug of the rosbag writer of the time), and the reader asserts
 ``size == count * 12``. For ROS 1 bags this module therefore walks the file's records itself
-(bag header, chunks, connection and message-data records, which are sound) and only uses
-``rosbags`` to decode the messages.
+(bag header, chunks, connection and message-data records, which are sound) through a memory
+map and only uses ``rosbags`` to decode the messages. ROS 2 bags and MCAP files are read
+with ``rosbags.highlevel.AnyReader``.
 """
 
 from __future__ import annotations
 
 import bz2
 import math
+import mmap
 import os
 import struct
 from collections.abc import Iterator
@@ -26,14 +33,23 @@ import numpy as np
 
 from drivers.textlog import LineLog
 from vmp.errors import InputError
-from vmp.types import ScanFrame
+from vmp.types import FloatArray, ScanFrame, wrap_angle
 
-__all__ = ["RosBagLog", "bag_topics"]
+__all__ = ["RosBagLog", "bag_topics", "is_ros2_bag"]
 
 SCAN_TYPES = ("sensor_msgs/msg/LaserScan", "sensor_msgs/LaserScan")
 ODOM_TYPES = ("nav_msgs/msg/Odometry", "nav_msgs/Odometry")
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf2_msgs/TFMessage", "tf/tfMessage", "tf/msg/tfMessage")
+BASE_FRAMES = ("base_link", "base_footprint", "base")
 
 
+def is_ros2_bag(path: Path) -> bool:
+    """A rosbag2 directory, or a storage file rosbags reads on its own (.mcap, .db3)."""
+    return (path.is_dir() and (path / "metadata.yaml").is_file()) or path.suffix in (
+        ".mcap", ".db3")
+
+
+# -- ROS 1: the file's own records ------------------------------------------------------------
 def _header_fields(buf: bytes) -> dict[bytes, bytes]:
     fields = {}
     i = 0
@@ -46,7 +62,7 @@ def _header_fields(buf: bytes) -> dict[bytes, bytes]:
     return fields
 
 
-def _records(buf: bytes, start: int, end: int) -> Iterator[tuple[dict[bytes, bytes], bytes]]:
+def _records(buf, start: int, end: int) -> Iterator[tuple[dict[bytes, bytes], bytes]]:
     """ROS 1 bag records ``(header fields, data)`` in ``buf[start:end]``."""
     pos = start
     while pos + 8 <= end:
@@ -60,52 +76,62 @@ def _records(buf: bytes, start: int, end: int) -> Iterator[tuple[dict[bytes, byt
         pos = data_start + dlen
 
 
-def _ros1_messages(path: Path) -> Iterator[tuple[str, str, str, int, bytes]]:
-    """``(topic, type, definition, time_ns, raw)`` of every message, in file order.
+def _ros1_messages(path: Path, topics: set[str] | None = None
+                   ) -> Iterator[tuple[str, str, str, int, bytes]]:
+    """``(topic, type, definition, time_ns, raw)`` of the messages (of ``topics``), file order.
 
     Chunks are found through the chunk-info records after ``index_pos`` (sound in every bag
-    seen), not by walking the records in between, whose IndexData lengths may be wrong.
+    seen), not by walking the records in between, whose IndexData lengths may be wrong. The
+    file is memory-mapped and one chunk at a time is decompressed.
     """
-    buf = path.read_bytes()
-    if not buf.startswith(b"#ROSBAG V2.0\n"):
-        raise InputError(f"{path}: not a ROS 1 bag version 2.0")
-    try:
-        pos = len(b"#ROSBAG V2.0\n")
-        (hlen,) = struct.unpack_from("<I", buf, pos)
-        bag = _header_fields(buf[pos + 4:pos + 4 + hlen])
-        (index_pos,) = struct.unpack("<Q", bag[b"index_pos"])
-        if not 0 < index_pos < len(buf):
-            raise InputError(f"{path}: the bag has no index (not closed properly?)")
-        chunk_pos = []
-        for fields, _ in _records(buf, index_pos, len(buf)):
-            if fields.get(b"op", b"\x00")[0] == 6:  # chunk info
-                chunk_pos.append(struct.unpack("<Q", fields[b"chunk_pos"])[0])
-        conns: dict[int, tuple[str, str, str]] = {}
-        for cpos in sorted(chunk_pos):
-            fields, data = next(_records(buf, cpos, len(buf)))
-            comp = fields.get(b"compression", b"none")
-            if comp == b"bz2":
-                data = bz2.decompress(data)
-            elif comp == b"lz4":
-                import lz4.frame  # optional: only bags compressed with lz4 need it
+    with open(path, "rb") as f:
+        if f.read(13) != b"#ROSBAG V2.0\n":
+            raise InputError(f"{path}: not a ROS 1 bag version 2.0")
+        try:
+            buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        except ValueError as exc:  # an empty file
+            raise InputError(f"{path}: empty file") from exc
+    with buf:
+        try:
+            pos = 13
+            (hlen,) = struct.unpack_from("<I", buf, pos)
+            bag = _header_fields(buf[pos + 4:pos + 4 + hlen])
+            (index_pos,) = struct.unpack("<Q", bag[b"index_pos"])
+            if not 0 < index_pos < len(buf):
+                raise InputError(f"{path}: the bag has no index (not closed properly?)")
+            chunk_pos = [struct.unpack("<Q", fields[b"chunk_pos"])[0]
+                         for fields, _ in _records(buf, index_pos, len(buf))
+                         if fields.get(b"op", b"\x00")[0] == 6]  # chunk info
+            conns: dict[int, tuple[str, str, str]] = {}
+            for cpos in sorted(chunk_pos):
+                fields, data = next(_records(buf, cpos, len(buf)))
+                data = _decompress(fields.get(b"compression", b"none"), data, path)
+                for f_, d in _records(data, 0, len(data)):
+                    op = f_.get(b"op", b"\x00")[0]
+                    if op == 7:
+                        inner = _header_fields(d)
+                        conns[struct.unpack("<I", f_[b"conn"])[0]] = (
+                            f_[b"topic"].decode(), inner[b"type"].decode(),
+                            inner.get(b"message_definition", b"").decode())
+                    elif op == 2:
+                        topic, msgtype, definition = conns[struct.unpack("<I", f_[b"conn"])[0]]
+                        if topics is None or topic in topics:
+                            sec, nsec = struct.unpack("<II", f_[b"time"])
+                            yield topic, msgtype, definition, sec * 10**9 + nsec, d
+        except (struct.error, KeyError, StopIteration) as exc:
+            raise InputError(f"{path}: corrupt ROS 1 bag ({exc!r})") from exc
 
-                data = lz4.frame.decompress(data)
-            elif comp != b"none":
-                raise InputError(f"{path}: chunk compression {comp.decode()!r} is not supported")
-            for f, d in _records(data, 0, len(data)):
-                op = f.get(b"op", b"\x00")[0]
-                if op == 7:
-                    inner = _header_fields(d)
-                    conns[struct.unpack("<I", f[b"conn"])[0]] = (
-                        f[b"topic"].decode(), inner[b"type"].decode(),
-                        inner.get(b"message_definition", b"").decode())
-                elif op == 2:
-                    (conn,) = struct.unpack("<I", f[b"conn"])
-                    sec, nsec = struct.unpack("<II", f[b"time"])
-                    topic, msgtype, definition = conns[conn]
-                    yield topic, msgtype, definition, sec * 10**9 + nsec, d
-    except (struct.error, KeyError, StopIteration) as exc:
-        raise InputError(f"{path}: corrupt ROS 1 bag ({exc!r})") from exc
+
+def _decompress(comp: bytes, data: bytes, path: Path) -> bytes:
+    if comp == b"none":
+        return data
+    if comp == b"bz2":
+        return bz2.decompress(data)
+    if comp == b"lz4":
+        import lz4.frame  # optional: only bags compressed with lz4 need it
+
+        return lz4.frame.decompress(data)
+    raise InputError(f"{path}: chunk compression {comp.decode()!r} is not supported")
 
 
 def _typename(msgtype: str) -> str:
@@ -114,86 +140,184 @@ def _typename(msgtype: str) -> str:
     return msgtype if "/msg/" in msgtype else f"{pkg}/msg/{name}"
 
 
-def _typestore(messages: list[tuple[str, str, str]]):
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+class _Ros1Bag:
+    """Topics and decoded messages of a ROS 1 bag."""
 
-    store = get_typestore(Stores.ROS1_NOETIC)
-    for _, msgtype, definition in messages:
-        if definition and _typename(msgtype) not in store.fielddefs:
-            store.register(get_types_from_msg(definition, _typename(msgtype)))
-    return store
+    def __init__(self, path: Path) -> None:
+        from rosbags.typesys import Stores, get_typestore
+
+        self.path = path
+        self.store = get_typestore(Stores.ROS1_NOETIC)
+        self.topics: dict[str, tuple[str, int]] = {}
+        for topic, msgtype, definition, _, _ in _ros1_messages(path):
+            self.topics[topic] = (msgtype, self.topics.get(topic, (msgtype, 0))[1] + 1)
+            self._register(msgtype, definition)
+
+    def _register(self, msgtype: str, definition: str) -> None:
+        from rosbags.typesys import get_types_from_msg
+
+        name = _typename(msgtype)
+        if definition and name not in self.store.fielddefs:
+            self.store.register(get_types_from_msg(definition, name))
+
+    def messages(self, topics: set[str]) -> Iterator[tuple[int, str, int, object]]:
+        """``(index, topic, time_ns, message or exception)`` of the chosen topics."""
+        for k, (topic, msgtype, _, t_ns, raw) in enumerate(_ros1_messages(self.path, topics)):
+            try:
+                msg = self.store.deserialize_ros1(raw, _typename(msgtype))
+            except Exception as exc:  # a broken message is reported, not fatal
+                msg = exc
+            yield k + 1, topic, t_ns, msg
+
+
+class _Ros2Bag:
+    """Topics and decoded messages of a ROS 2 bag or MCAP file, through AnyReader."""
+
+    def __init__(self, path: Path) -> None:
+        from rosbags.highlevel import AnyReader
+
+        self.path = path
+        self._reader_cls = AnyReader
+        try:
+            with AnyReader([path]) as reader:
+                self.topics = {t: (info.msgtype or "?", info.msgcount)
+                               for t, info in reader.topics.items()}
+        except Exception as exc:  # rosbags raises many kinds on a bad bag
+            raise InputError(f"{path}: cannot open as a ROS 2 bag or MCAP file: {exc}") from exc
+
+    def messages(self, topics: set[str]) -> Iterator[tuple[int, str, int, object]]:
+        try:
+            with self._reader_cls([self.path]) as reader:
+                conns = [c for c in reader.connections if c.topic in topics]
+                for k, (conn, t_ns, raw) in enumerate(reader.messages(connections=conns)):
+                    try:
+                        msg = reader.deserialize(raw, conn.msgtype)
+                    except Exception as exc:  # reported, not fatal
+                        msg = exc
+                    yield k + 1, conn.topic, t_ns, msg
+        except InputError:
+            raise
+        except Exception as exc:
+            raise InputError(f"{self.path}: cannot read the bag: {exc}") from exc
+
+
+def _open_bag(path: Path) -> _Ros1Bag | _Ros2Bag:
+    return _Ros2Bag(path) if is_ros2_bag(path) else _Ros1Bag(path)
 
 
 def bag_topics(path: str | os.PathLike[str]) -> dict[str, tuple[str, int]]:
     """Topic -> (message type, number of messages)."""
-    return _count_topics(_ros1_messages(Path(path)))
-
-
-def _count_topics(messages) -> dict[str, tuple[str, int]]:
-    out: dict[str, tuple[str, int]] = {}
-    for topic, msgtype, _, _, _ in messages:
-        out[topic] = (msgtype, out.get(topic, (msgtype, 0))[1] + 1)
-    return out
+    return _open_bag(Path(path)).topics
 
 
 def _yaw(q) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y**2 + q.z**2))
 
 
-class RosBagLog(LineLog):
-    """Scan frames from a ROS 1 bag (``scan_topic`` and ``odom_topic`` chosen or detected)."""
+def _stamp(header, t_ns: int) -> float:
+    s = header.stamp.sec + header.stamp.nanosec * 1e-9
+    return s if s > 0 else t_ns * 1e-9
 
-    format_name = "ROS 1 bag"
+
+def interpolate_poses(stamps: FloatArray, poses: FloatArray, at: float) -> FloatArray | None:
+    """The pose at ``at`` between the stamped poses around it (the nearest outside them)."""
+    if len(stamps) == 0:
+        return None
+    i = int(np.searchsorted(stamps, at))
+    if i == 0:
+        return poses[0].copy()
+    if i == len(stamps):
+        return poses[-1].copy()
+    t0, t1 = stamps[i - 1], stamps[i]
+    f = 0.0 if t1 <= t0 else (at - t0) / (t1 - t0)
+    a, b = poses[i - 1], poses[i]
+    out = a + f * (b - a)
+    out[2] = float(wrap_angle(a[2] + f * float(wrap_angle(b[2] - a[2]))))
+    return out
+
+
+class RosBagLog(LineLog):
+    """Scan frames from a ROS 1 or ROS 2 bag or an MCAP file (topics chosen or detected)."""
+
+    format_name = "ROS bag"
+    item = "message"
 
     def __init__(self, path: str | os.PathLike[str], *, strict: bool = False,
                  scan_topic: str | None = None, odom_topic: str | None = None) -> None:
         super().__init__(path, strict=strict)
         self.scan_topic, self.odom_topic = scan_topic, odom_topic
+        self.bag = _open_bag(self.path)
+        self.format_name = "ROS 2 bag / MCAP" if isinstance(self.bag, _Ros2Bag) else "ROS 1 bag"
+        self.topics = self.bag.topics
+        self.chosen_scan, self.chosen_odom = self._choose()
+
+    def _choose(self) -> tuple[str, str | None]:
+        topics = self.topics
+        listing = ", ".join(f"{t} ({m})" for t, (m, _) in sorted(topics.items())) or "none"
+        scans = [t for t, (m, _) in topics.items() if m in SCAN_TYPES]
+        scan = self.scan_topic or (scans[0] if scans else None)
+        if scan is None or scan not in topics or topics[scan][0] not in SCAN_TYPES:
+            what = f"{scan!r} is not a LaserScan topic" if scan else "no LaserScan topic"
+            raise InputError(f"{self.path}: {what}; topics: {listing}")
+        odom = self.odom_topic
+        if odom is not None:
+            if odom not in topics or topics[odom][0] not in ODOM_TYPES + TF_TYPES:
+                raise InputError(f"{self.path}: {odom!r} is neither an Odometry nor a tf "
+                                 f"topic; topics: {listing}")
+        else:
+            odoms = [t for t, (m, _) in topics.items() if m in ODOM_TYPES]
+            tfs = [t for t, (m, _) in topics.items() if m in TF_TYPES and t != "/tf_static"]
+            odom = odoms[0] if odoms else (tfs[0] if tfs else None)
+        return scan, odom
+
+    def _odometry(self) -> tuple[FloatArray, FloatArray]:
+        """Stamps and poses of the odometry topic, sorted by stamp."""
+        if self.chosen_odom is None:
+            return np.zeros(0), np.zeros((0, 3))
+        is_tf = self.topics[self.chosen_odom][0] in TF_TYPES
+        t, p = [], []
+        for k, _, t_ns, m in self.bag.messages({self.chosen_odom}):
+            if isinstance(m, Exception):
+                self._bad(k, f"bad odometry message: {m}")
+                continue
+            if is_tf:
+                for tr in m.transforms:
+                    child = tr.child_frame_id.lstrip("/")
+                    if child in BASE_FRAMES and "odom" in tr.header.frame_id:
+                        q, v = tr.transform.rotation, tr.transform.translation
+                        t.append(_stamp(tr.header, t_ns))
+                        p.append([v.x, v.y, _yaw(q)])
+            else:
+                pose = m.pose.pose
+                t.append(_stamp(m.header, t_ns))
+                p.append([pose.position.x, pose.position.y, _yaw(pose.orientation)])
+        stamps, poses = np.array(t), np.array(p).reshape(-1, 3)
+        good = np.isfinite(stamps) & np.isfinite(poses).all(axis=1)
+        order = np.argsort(stamps[good], kind="stable")
+        return stamps[good][order], poses[good][order]
 
     def __iter__(self) -> Iterator[ScanFrame]:
         self.problems, self.skipped, self.backwards, self.scans = [], 0, 0, 0
-        msgs = list(_ros1_messages(self.path))  # a bag is read whole, once; they are small
-        topics = _count_topics(msgs)
-        scans = [t for t, (m, _) in topics.items() if m in SCAN_TYPES]
-        odoms = [t for t, (m, _) in topics.items() if m in ODOM_TYPES]
-        scan_topic = self.scan_topic or (scans[0] if scans else None)
-        if scan_topic is None or scan_topic not in topics:
-            raise InputError(f"{self.path}: no LaserScan topic"
-                             f"{' ' + repr(scan_topic) if scan_topic else ''}; topics: "
-                             f"{', '.join(sorted(topics)) or 'none'}")
-        odom_topic = self.odom_topic or (odoms[0] if odoms else None)
-        store = _typestore([(t, m, d) for t, m, d, _, _ in msgs])
-        odom_t, odom_p = [], []
-        if odom_topic is not None:
-            for topic, msgtype, _, _, raw in msgs:
-                if topic == odom_topic:
-                    m = store.deserialize_ros1(raw, _typename(msgtype))
-                    stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
-                    p = m.pose.pose
-                    odom_t.append(stamp)
-                    odom_p.append([p.position.x, p.position.y, _yaw(p.orientation)])
-        odom_t_arr, odom_p_arr = np.array(odom_t), np.array(odom_p).reshape(-1, 3)
+        odom_t, odom_p = self._odometry()
         last = -math.inf
-        for k, (topic, msgtype, _, t_ns, raw) in enumerate(msgs):
-            if topic != scan_topic:
-                continue
+        for k, _, t_ns, m in self.bag.messages({self.chosen_scan}):
             try:
-                m = store.deserialize_ros1(raw, _typename(msgtype))
+                if isinstance(m, Exception):
+                    raise ValueError(str(m))
                 r = np.asarray(m.ranges, dtype=np.float64)
                 ok = np.isfinite(r) & (r >= m.range_min) & (r <= m.range_max) & (r > 0)
-                ranges = np.where(ok, r, np.inf)
-                stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 or t_ns * 1e-9
-                odom = None
-                if len(odom_t_arr):
-                    odom = odom_p_arr[int(np.argmin(np.abs(odom_t_arr - stamp)))]
-                frame = ScanFrame(stamp=stamp, ranges=ranges, angle_min=float(m.angle_min),
+                stamp = _stamp(m.header, t_ns)
+                frame = ScanFrame(stamp=stamp, ranges=np.where(ok, r, np.inf),
+                                  angle_min=float(m.angle_min),
                                   angle_increment=float(m.angle_increment),
-                                  max_range=float(m.range_max), odom=odom, index=self.scans)
-            except (ValueError, KeyError, struct.error) as exc:
-                self._bad(k + 1, f"bad LaserScan message: {exc}")
+                                  max_range=float(m.range_max),
+                                  odom=interpolate_poses(odom_t, odom_p, stamp),
+                                  index=self.scans)
+            except (ValueError, AttributeError) as exc:
+                self._bad(k, f"bad LaserScan message: {exc}")
                 continue
             if frame.stamp < last:
-                self._bad(k + 1, "stamp runs backwards; scan kept", skip=False)
+                self._bad(k, "stamp runs backwards; scan kept", skip=False)
             last = max(last, frame.stamp)
             self.scans += 1
             yield frame

@@ -66,8 +66,11 @@ class ScanDriver:
 
     ``port`` is a device path or a pyserial URL. ``silence`` is how long without a complete
     scan counts as a silent device; reconnection waits ``backoff`` seconds, doubling up to
-    ``backoff_max``. ``clock`` stamps frames on arrival (default: the wall clock). ``stop``
-    (a callable) ends :meth:`frames` when it returns True.
+    ``backoff_max``. ``clock`` stamps frames on arrival (default: the wall clock);
+    :meth:`close` (from any thread) ends :meth:`frames`.
+
+    :meth:`reset_decoder` runs before each :meth:`connect`, not after it: bytes that the
+    handshake read past its last reply (the first scan, often) may be kept for :meth:`decode`.
     """
 
     name = "scanner"
@@ -151,7 +154,6 @@ class ScanDriver:
             self.open_port()
             self.reset_decoder()
             self.layout = self.connect()
-            self.reset_decoder()
             return True
         except (OSError, serial.SerialException, DeviceError) as exc:
             self.last_error = str(exc)

@@ -45,6 +45,8 @@ class LineLog:
     """
 
     format_name = "text log"
+    item = "line"  # what a problem's number counts (a bag counts messages)
+    topics: dict[str, tuple[str, int]] | None = None  # topic -> (type, messages), for bags
 
     def __init__(self, path: str | os.PathLike[str], *, strict: bool = False) -> None:
         self.path = Path(path)
@@ -56,7 +58,8 @@ class LineLog:
 
     def _bad(self, no: int, what: str, skip: bool = True) -> None:
         if self.strict:
-            raise InputError(f"{self.path}:{no}: {what}")
+            where = f"{self.path}:{no}" if self.item == "line" else f"{self.path}: {self.item} {no}"
+            raise InputError(f"{where}: {what}")
         if skip:
             self.skipped += 1
         else:
@@ -86,8 +89,8 @@ class LineLog:
     def summary(self) -> str:
         """One line on what was skipped or odd, with the first few line numbers."""
         if not self.problems:
-            return f"{self.path}: {self.scans} scans, no bad lines"
-        first = "; ".join(f"line {no}: {what}" for no, what in self.problems[:3])
+            return f"{self.path}: {self.scans} scans, no bad {self.item}s"
+        first = "; ".join(f"{self.item} {no}: {what}" for no, what in self.problems[:3])
         more = "; ..." if len(self.problems) > 3 else ""
-        return (f"{self.path}: {self.scans} scans, {self.skipped} bad lines skipped, "
+        return (f"{self.path}: {self.scans} scans, {self.skipped} bad {self.item}s skipped, "
                 f"{self.backwards} stamps running backwards ({first}{more})")

@@ -18,6 +18,9 @@ def test_wheel_contents(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     for package in ("vmp", "milestones", "drivers", "viz", "scenarios"):
         assert f"{package}/__init__.py" in names
+        # every module of the source tree, subpackages included, is in the wheel
+        for module in (ROOT / package).rglob("*.py"):
+            assert module.relative_to(ROOT).as_posix() in names
     for scenario in ("office", "corridor", "lab", "warehouse"):
         assert f"scenarios/{scenario}.yaml" in names
     assert not any(n.startswith(("tests/", "bench/")) for n in names)

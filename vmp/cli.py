@@ -100,8 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
         "  vmp map office --config my.yaml           # see results/latest/config.yaml\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    mp.add_argument("source", help="scenario name, scenario YAML, or CARMEN log (.clf, .log, "
-                    "optionally .gz)")
+    mp.add_argument("source", help="scenario name, scenario YAML, or a recording: CARMEN log "
+                    "(.clf, .log, .gz, g2o .zip), DP-SLAM or BreezySLAM log, ROS 1 bag, ROS 2 "
+                    "bag folder or MCAP file")
     mp.add_argument("--out", type=Path, default=Path("results"),
                     help="folder that receives the dated results folder (default: results)")
     mp.add_argument("--config", type=Path, help="mapping configuration YAML (default: built-in)")
@@ -117,6 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--seed", type=_nonneg_int, help="simulation seed (scenarios only)")
     mp.add_argument("--format", choices=["carmen", "dpslam", "breezyslam", "rosbag"],
                     help="recording format (default: detected from the content)")
+    mp.add_argument("--scan-topic", help="ROS bags: the LaserScan topic (default: the first)")
+    mp.add_argument("--odom-topic", help="ROS bags: an Odometry or tf topic (default: an "
+                    "Odometry topic, else /tf; see 'vmp info')")
     mp.add_argument("--strict", action="store_true",
                     help="stop at the first bad line of a recording (default: skip, count, "
                     "report)")
@@ -167,6 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
     inf.add_argument("recording", type=Path)
     inf.add_argument("--format", choices=["carmen", "dpslam", "breezyslam", "rosbag"],
                      help="recording format (default: detected from the content)")
+    inf.add_argument("--scan-topic", help="ROS bags: the LaserScan topic (default: the first)")
+    inf.add_argument("--odom-topic", help="ROS bags: an Odometry or tf topic")
     inf.set_defaults(func=cmd_info)
 
     from vmp.cli_live import add_live_parser
@@ -222,7 +228,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _open_source(text: str, seed: int | None, scans: int | None, strict: bool = False,
-                 fmt: str | None = None):
+                 fmt: str | None = None, scan_topic: str | None = None,
+                 odom_topic: str | None = None):
     """Frames, beam geometry, their count (or None), a name, and the log reader (or None)."""
     import itertools
 
@@ -233,8 +240,8 @@ def _open_source(text: str, seed: int | None, scans: int | None, strict: bool = 
 
     path = Path(text)
     is_log = fmt is not None or path.suffix in (".clf", ".log", ".gz", ".txt", ".dat",
-                                                ".bag") or (
-        path.is_file() and path.suffix not in (".yaml", ".yml"))
+                                                ".bag", ".mcap", ".db3", ".zip") or (
+        path.is_file() and path.suffix not in (".yaml", ".yml")) or path.is_dir()
     if not is_log or text in builtin_scenarios():
         scenario = load_scenario(text)
         try:
@@ -246,9 +253,9 @@ def _open_source(text: str, seed: int | None, scans: int | None, strict: bool = 
         return iter(sim), geom, len(sim), scenario.name, None
     if seed is not None:
         raise InputError("--seed applies to scenarios, not to recordings")
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"{path}: no such file")
-    log = open_recording(path, fmt, strict)
+    log = open_recording(path, fmt, strict, scan_topic=scan_topic, odom_topic=odom_topic)
     frames = iter(log)
     first = next(frames, None)
     if first is None:
@@ -282,7 +289,8 @@ def cmd_map(args: argparse.Namespace) -> int:
     if not (args.resolution > 0):
         raise InputError(f"--resolution must be positive, got {args.resolution}")
     frames, geom, total, name, log = _open_source(args.source, args.seed, args.scans,
-                                                  args.strict, args.format)
+                                                  args.strict, args.format, args.scan_topic,
+                                                  args.odom_topic)
     view, where = None, ""
     if args.rerun:
         from viz.rerun_view import open_rerun
@@ -390,7 +398,8 @@ def cmd_info(args: argparse.Namespace) -> int:
     from drivers.formats import open_recording
 
     path = args.recording
-    log = open_recording(path, args.format)
+    log = open_recording(path, args.format, scan_topic=args.scan_topic,
+                         odom_topic=args.odom_topic)
     n = 0
     first = last = None
     beams = set()
@@ -426,8 +435,17 @@ def cmd_info(args: argparse.Namespace) -> int:
     else:
         print(f"odometry      {'yes' if odom_moves else 'none (constant pose)'}; last "
               f"({last.odom[0]:.2f}, {last.odom[1]:.2f}, {math.degrees(last.odom[2]):.1f} deg)")
-    print(f"bad lines     {log.skipped} skipped, {log.backwards} stamps running backwards"
-          + (f" (first: line {log.problems[0][0]}: {log.problems[0][1]})"
+    if log.topics is not None:
+        chosen = (getattr(log, "chosen_scan", None), getattr(log, "chosen_odom", None))
+        print("topics")
+        for topic, (msgtype, count) in sorted(log.topics.items()):
+            used = (" <- scans" if topic == chosen[0] else
+                    " <- odometry" if topic == chosen[1] else "")
+            print(f"  {topic:<28} {msgtype:<32} {count:>7} messages{used}")
+    item = log.item
+    print(f"bad {item}s{' ' * (9 - len(item))}{log.skipped} skipped, {log.backwards} stamps "
+          f"running backwards"
+          + (f" (first: {item} {log.problems[0][0]}: {log.problems[0][1]})"
              if log.problems else ""))
     return 0
 

@@ -9,9 +9,11 @@ scan registration alone, and the summary says which.
 from __future__ import annotations
 
 import dataclasses
+import queue
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +27,7 @@ from vmp.errors import InputError
 from vmp.pipeline import Pipeline, PipelineConfig
 from vmp.progress import Progress
 from vmp.results import new_results_dir, write_results
+from vmp.types import ScanFrame
 from vmp.vector_map import BeamGeometry
 from vmp.view import View
 
@@ -53,6 +56,59 @@ class LiveRun:
     metrics: dict
     interrupted: bool
     odometry: str
+
+
+class _Reader:
+    """Reads the driver in its own thread so that a slow mapping step never stalls the port.
+
+    A serial port's buffer holds a few kilobytes: a mapper that stops reading for a second
+    (a graph adjustment) would lose bytes and scans. Frames wait in a queue instead; when
+    it is full the oldest is dropped and counted.
+    """
+
+    _END = object()
+
+    def __init__(self, driver: ScanDriver, size: int = 1000) -> None:
+        self.driver = driver
+        self.queue: queue.Queue = queue.Queue(maxsize=size)
+        self.dropped = 0
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="live-reader", daemon=True)
+
+    def _put(self, item: object) -> None:
+        while True:
+            try:
+                self.queue.put_nowait(item)
+                return
+            except queue.Full:
+                try:
+                    self.queue.get_nowait()
+                    self.dropped += 1
+                except queue.Empty:
+                    pass
+
+    def _run(self) -> None:
+        try:
+            for frame in self.driver.frames():
+                self._put(frame)
+        except BaseException as exc:  # handed to the mapping thread, raised there
+            self.error = exc
+        finally:
+            self._put(self._END)
+
+    def frames(self) -> Iterator[ScanFrame]:
+        self._thread.start()
+        try:
+            while True:
+                item = self.queue.get()
+                if item is self._END:
+                    if self.error is not None:
+                        raise self.error
+                    return
+                yield item
+        finally:
+            self.driver.close()
+            self._thread.join(timeout=5.0)
 
 
 def run_live(driver: ScanDriver, config: PipelineConfig, options: LiveOptions, *,
@@ -92,8 +148,9 @@ def run_live(driver: ScanDriver, config: PipelineConfig, options: LiveOptions, *
     waiting = 0
     interrupted = False
     last_flush = time.monotonic()
+    reader = _Reader(driver)
     try:
-        for frame in driver.frames():
+        for frame in reader.frames():
             if feed is not None:
                 odom = feed.pose_at(frame.stamp)
                 if odom is None:
@@ -110,7 +167,7 @@ def run_live(driver: ScanDriver, config: PipelineConfig, options: LiveOptions, *
             stamps.append(frame.stamp)
             s = driver.stats
             progress.status = (f"errors {s.errors()} (checksum {s.checksum_errors}), "
-                               f"silences {s.timeouts}")
+                               f"silences {s.timeouts}, queued {reader.queue.qsize()}")
             progress.update()
             if time.monotonic() - last_flush > 1.0:
                 writer.flush()
@@ -139,6 +196,7 @@ def run_live(driver: ScanDriver, config: PipelineConfig, options: LiveOptions, *
         "link: silences": s.timeouts,
         "link: reconnects": s.reconnects,
         "scans waiting for odometry": waiting,
+        "scans dropped (mapping fell behind)": reader.dropped,
     })
     metrics = write_results(out, pipeline, np.array(stamps), f"live {driver.name} {driver.port}",
                             options.resolution, extra={"odometry": odometry})

@@ -234,8 +234,10 @@ class PtyDevice:
         if self._ctl.silent:
             return
         out, changed = self.corruption.apply(data, self._rng)
+        record = None
         if scan is not None:
-            self.sent.append(SentScan(scan[0], scan[1], not changed))
+            record = SentScan(scan[0], scan[1], not changed)
+            self.sent.append(record)
         view = memoryview(out)
         deadline = time.monotonic() + 0.5
         while view and not self._ctl.stop:
@@ -250,6 +252,8 @@ class PtyDevice:
             if view:
                 if time.monotonic() > deadline:  # nobody reads: the bytes are lost
                     self.bytes_dropped += len(view)
+                    if record is not None:
+                        record.intact = False
                     return
                 select.select([], [self._master], [], 0.01)
 
