@@ -25,6 +25,7 @@ or beyond the laser's maximum range means "no return".
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Iterable, Iterator
@@ -36,7 +37,7 @@ import numpy as np
 from drivers.textlog import LineLog
 from vmp import __version__
 from vmp.fileio import atomic_write
-from vmp.types import ScanFrame, wrap_angle
+from vmp.types import ScanFrame, compose, relative, wrap_angle
 
 __all__ = ["CarmenLog", "CarmenWriter", "parse_laser_line", "read_carmen", "write_carmen"]
 
@@ -163,14 +164,34 @@ class CarmenLog(LineLog):
     runs backwards is recorded too but the scan is kept in file order: real logs do this (the
     Intel recording's scans come in bursts whose stamps go back by up to a second), and the
     mapper follows odometry, not time. With ``strict`` the first of either raises
-    :class:`InputError`. The odometry of a scan is the pose its line carries. Memory does not
-    grow with the file: lines are read one at a time (gzip too).
+    :class:`InputError`. Memory does not grow with the file: lines are read one at a time
+    (gzip too).
+
+    Odometry: a FLASER or ROBOTLASER1 scan carries its own. A RAWLASER scan carries none; it
+    gets the pose of the ODOM lines interpolated to its stamp (a log without ODOM lines gives
+    scans without odometry). In a GMapping output log (one with ``NEFF`` lines, like the
+    corrected Radish logs) the FLASER poses are GMapping's corrected estimates, not odometry:
+    the raw odometry is rebuilt from the ODOM lines (see :meth:`_rebuild`) and the corrected
+    poses are kept in :attr:`reference`, one per scan, to compare against.
     """
 
     format_name = "CARMEN log"
 
+    def __init__(self, path: str | os.PathLike[str], *, strict: bool = False) -> None:
+        super().__init__(path, strict=strict)
+        self.reference: list[tuple[float, np.ndarray]] = []
+        self.gmapping = False
+        self.unknown_increments = 0
+
     def _frames(self, lines: Iterator[tuple[int, str]]) -> Iterator[ScanFrame]:
+        self.reference, self.gmapping, self.unknown_increments = [], False, 0
         params: dict[str, str] = {}
+        odom_t: list[float] = []  # recent ODOM lines: stamps and poses
+        odom_p: list[np.ndarray] = []
+        pending: list[tuple[int, ScanFrame]] = []  # pose-less scans waiting for ODOM lines
+        no_odometry = False
+        prev: tuple[np.ndarray, np.ndarray] | None = None  # (corrected pose, rebuilt odom)
+        self._odom_lines = 0  # ODOM lines since the last FLASER
         for no, line in lines:
             parts = line.split()
             if not parts or parts[0].startswith("#"):
@@ -179,15 +200,100 @@ class CarmenLog(LineLog):
             if kind == "PARAM" and len(parts) >= 3:
                 params[parts[1]] = parts[2]
                 continue
+            if kind == "NEFF":
+                self.gmapping = True
+                continue
+            if kind == "ODOM":
+                pose = _odom_line(parts)
+                if pose is None:
+                    self._bad(no, "bad ODOM line: expected x y theta tv rv accel timestamp")
+                    continue
+                odom_t.append(pose[0])
+                odom_p.append(pose[1])
+                self._odom_lines += 1
+                if len(odom_t) > 2:
+                    del odom_t[0], odom_p[0]
+                while pending and pending[0][1].stamp <= odom_t[-1]:
+                    lno, f = pending.pop(0)
+                    self._line = lno
+                    yield _with_odom(f, _interpolate(odom_t, odom_p, f.stamp))
+                continue
             if kind not in _LASER_WORDS:
                 continue
             try:
-                frame = _parse_laser(kind, parts, params, self.scans)
+                frame = _parse_laser(kind, parts, params, self.scans + len(pending))
             except (ValueError, IndexError) as exc:
                 self._bad(no, f"bad {kind} line: {exc}")
                 continue
+            if frame.odom is None and not no_odometry:
+                # A RAWLASER line: odometry comes from the ODOM lines around its stamp.
+                pending.append((no, frame))
+                if not odom_t and len(pending) > 50:
+                    no_odometry = True  # a log without ODOM lines: scans carry none
+                    for lno, f in pending:
+                        self._line = lno
+                        yield f
+                    pending.clear()
+                continue
+            if kind == "FLASER" and frame.odom is not None:
+                frame, prev = self._rebuild(frame, odom_p, prev)
+                self._odom_lines = 0
             self._line = no
             yield frame
+        for lno, f in pending:  # after the last ODOM line: the last pose holds
+            self._line = lno
+            yield _with_odom(f, _interpolate(odom_t, odom_p, f.stamp) if odom_t else None)
+        if not self.gmapping:
+            self.reference = []
+
+    def _rebuild(self, frame: ScanFrame, odom_p: list[np.ndarray],
+                 prev: tuple[np.ndarray, np.ndarray] | None
+                 ) -> tuple[ScanFrame, tuple[np.ndarray, np.ndarray]]:
+        """In a GMapping output log, replace the corrected pose by rebuilt raw odometry.
+
+        GMapping writes each keyframe with its corrected pose P_k (as pose and as odometry),
+        then an ODOM line with P_k, then dead-reckoned ODOM lines continuing from P_k. The raw
+        increment to keyframe k+1 is ``inverse(P_k) (+) (last ODOM line before it)``; chained
+        from P_0 these give the robot's own odometry. P_k is kept in :attr:`reference`.
+        Where no dead-reckoned ODOM line lies between two keyframes (only GMapping's copy of
+        P_k) the increment is unknown: that scan gets no odometry (counted in
+        :attr:`unknown_increments`) and the chain goes on from the next known increment.
+        """
+        corrected = frame.odom
+        assert corrected is not None
+        self.reference.append((frame.stamp, corrected.copy()))  # dropped if not GMapping's
+        if not self.gmapping or prev is None or not odom_p:
+            return frame, (corrected, corrected)
+        if self._odom_lines <= 1:
+            self.unknown_increments += 1
+            return _with_odom(frame, None), (corrected, prev[1])
+        odom = compose(prev[1], relative(prev[0], odom_p[-1]))
+        return _with_odom(frame, odom), (corrected, odom)
+
+
+def _odom_line(parts: list[str]) -> tuple[float, np.ndarray] | None:
+    try:
+        pose = np.array(parts[1:4], dtype=np.float64)
+        stamp = float(parts[7])
+    except (ValueError, IndexError):
+        return None
+    if len(pose) != 3 or not (np.isfinite(pose).all() and math.isfinite(stamp)):
+        return None
+    return stamp, pose
+
+
+def _interpolate(stamps: list[float], poses: list[np.ndarray], t: float) -> np.ndarray:
+    if len(stamps) == 1 or t >= stamps[-1] or stamps[-1] <= stamps[0]:
+        return poses[-1].copy() if t >= stamps[-1] else poses[0].copy()
+    f = min(max((t - stamps[0]) / (stamps[-1] - stamps[0]), 0.0), 1.0)
+    a, b = poses[0], poses[-1]
+    out = a + f * (b - a)
+    out[2] = float(wrap_angle(a[2] + f * float(wrap_angle(b[2] - a[2]))))
+    return out
+
+
+def _with_odom(frame: ScanFrame, odom: np.ndarray | None) -> ScanFrame:
+    return dataclasses.replace(frame, odom=odom)
 
 
 def read_carmen(path: str | os.PathLike[str], strict: bool = False) -> Iterator[ScanFrame]:

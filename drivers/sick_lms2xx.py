@@ -56,26 +56,37 @@ class SickLms2xx(ScanDriver):
         self.device_type = ""
         self._rx = TelegramReceiver()
         self._seen = (0, 0, 0)
+        self._early: list[Telegram] = []
 
     # -- telegram exchange ---------------------------------------------------------------------
-    def _ask(self, payload: bytes, answer: int, timeout: float = 0.5) -> Telegram:
-        """Send a request and wait for the reply telegram with code ``answer``."""
+    def _ask(self, payload: bytes, answer: int, timeout: float = 0.5,
+             rx: TelegramReceiver | None = None) -> Telegram:
+        """Send a request and wait for the reply telegram with code ``answer``.
+
+        Telegrams that arrive after the reply in the same read (the first scans after
+        ``20 24``) are kept for :meth:`decode`; ``rx`` then is the streaming receiver, so a
+        scan cut by the read goes on in it.
+        """
         assert self.ser is not None
-        rx = TelegramReceiver()
+        rx = rx or TelegramReceiver()
         self.write(request(payload))
         found: list[Telegram] = []
         deadline = time.monotonic() + timeout
         while not found and not rx.naks and time.monotonic() < deadline:
             chunk = self.ser.read(max(1, self.ser.in_waiting))
-            found += [t for t in rx.feed(chunk) if t.command == answer]
+            for t in rx.feed(chunk):
+                if found:
+                    self._early.append(t)
+                elif t.command == answer:
+                    found.append(t)
         if not found:
             why = "refused it (NAK)" if rx.naks else "did not answer"
             raise DeviceError(f"{self.port}: LMS {why} (request {payload[:1].hex()}, "
                               f"waited for {answer:02X})")
         return found[0]
 
-    def _mode(self, data: bytes, what: str) -> None:
-        t = self._ask(bytes([0x20]) + data, 0xA0)
+    def _mode(self, data: bytes, what: str, rx: TelegramReceiver | None = None) -> None:
+        t = self._ask(bytes([0x20]) + data, 0xA0, rx=rx)
         if t.data[:1] != b"\x00":
             raise DeviceError(f"{self.port}: LMS refused {what} (A0 status {t.data[:1].hex()})")
 
@@ -95,6 +106,7 @@ class SickLms2xx(ScanDriver):
     # -- ScanDriver hooks ----------------------------------------------------------------------
     def connect(self) -> BeamLayout:
         assert self.ser is not None
+        self._early: list[Telegram] = []
         rate = self._find_rate()
         self.device_type = self._ask(b"\x3A", 0xBA).data.decode("ascii", "replace").strip()
         if rate != self.work_baud:
@@ -116,7 +128,8 @@ class SickLms2xx(ScanDriver):
             t = self._ask(b"\x77" + bytes(config), 0xF7, timeout=1.0)
             if t.data[:1] != b"\x01":
                 raise DeviceError(f"{self.port}: LMS refused the configuration (units)")
-        self._mode(b"\x24", "continuous output")
+        self._early = []
+        self._mode(b"\x24", "continuous output", rx=self._rx)
         n = angle * 100 // res + 1
         unit = {0: 0.01, 1: 0.001, 2: 0.1}[self.units]
         return BeamLayout(beams=n, angle_min=-math.radians(angle / 2.0),
@@ -130,7 +143,8 @@ class SickLms2xx(ScanDriver):
     def decode(self, data: bytes) -> list[FloatArray]:
         out = []
         assert self.layout is not None
-        for t in self._rx.feed(data):
+        early, self._early = self._early, []
+        for t in early + self._rx.feed(data):
             if t.command != 0xB0:
                 continue
             try:

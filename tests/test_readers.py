@@ -140,3 +140,59 @@ def test_killian_g2o_zip_reads_its_robotlaser_lines():
     assert math.isclose(f.angle_min, -math.pi / 2, abs_tol=1e-5)
     assert math.isclose(f.angle_increment, math.radians(1), abs_tol=1e-5)
     assert np.isfinite(f.odom).all() and frames[-1].stamp > f.stamp
+
+
+def _flaser(pose, stamp):
+    ranges = " ".join(["2.0"] * 181)
+    p = " ".join(f"{v:g}" for v in pose)
+    return f"FLASER 181 {ranges} {p} {p} {stamp} host {stamp}\n"
+
+
+def _odom(pose, stamp):
+    p = " ".join(f"{v:g}" for v in pose)
+    return f"ODOM {p} 0 0 0 {stamp} host {stamp}\n"
+
+
+def test_gmapping_log_gets_its_raw_odometry_rebuilt(tmp_path):
+    """FLASER poses of a GMapping output log are corrected; ODOM lines hold the raw motion."""
+    from drivers.carmen import CarmenLog
+
+    log = tmp_path / "corrected.log"
+    # keyframe 0 at the origin; the wheels then say 1 m ahead, GMapping says (1.1, 0.2).
+    # keyframe 2: no dead-reckoned ODOM line before it (only GMapping's copy): unknown.
+    # keyframe 3: 0.5 m ahead of keyframe 2 by the wheels.
+    log.write_text(
+        _odom((0, 0, 0), 0.0) + _flaser((0, 0, 0), 0.1) + _odom((0, 0, 0), 0.1) + "NEFF 30\n"
+        + _odom((0.5, 0, 0), 0.5) + _odom((1.0, 0, 0), 0.9)
+        + _flaser((1.1, 0.2, 0.1), 1.0) + _odom((1.1, 0.2, 0.1), 1.0) + "NEFF 29\n"
+        + _flaser((2.0, 0.3, 0.1), 2.0) + _odom((2.0, 0.3, 0.1), 2.0)
+        + _odom((2.0 + 0.5 * math.cos(0.1), 0.3 + 0.5 * math.sin(0.1), 0.1), 2.5)
+        + _flaser((2.6, 0.4, 0.15), 3.0))
+    reader = CarmenLog(log)
+    frames = list(reader)
+    assert reader.gmapping and reader.unknown_increments == 1
+    np.testing.assert_allclose(frames[0].odom, [0, 0, 0])
+    np.testing.assert_allclose(frames[1].odom, [1.0, 0, 0], atol=1e-12)  # the wheels' 1 m
+    assert frames[2].odom is None
+    # the chain continues from keyframe 1's odometry by keyframe 2 -> 3's raw increment
+    np.testing.assert_allclose(frames[3].odom, [1.5, 0.0, 0.0], atol=1e-5)  # %g in the log
+    ref = np.array([p for _, p in reader.reference])
+    np.testing.assert_allclose(ref[:, 0], [0, 1.1, 2.0, 2.6])
+
+
+def test_rawlaser_scans_take_odometry_interpolated_from_odom_lines(tmp_path):
+    from drivers.carmen import CarmenLog
+
+    ranges = " ".join(["2.0"] * 5)
+    raw = "RAWLASER1 0 -1.5708 3.1416 0.7854 8 0.01 0 5 {r} 0 {t} host {t}\n"
+    log = tmp_path / "raw.log"
+    log.write_text(_odom((0, 0, 3.0), 1.0) + raw.format(r=ranges, t=1.5)
+                   + raw.format(r=ranges, t=1.75) + _odom((1, 2, -3.0), 2.0)
+                   + raw.format(r=ranges, t=2.5))
+    frames = list(CarmenLog(log))
+    assert len(frames) == 3
+    np.testing.assert_allclose(frames[0].odom[:2], [0.5, 1.0])
+    assert abs(abs(frames[0].odom[2]) - math.pi) < 1e-9  # the short way through pi
+    np.testing.assert_allclose(frames[1].odom[:2], [0.75, 1.5])
+    np.testing.assert_allclose(frames[2].odom, [1, 2, -3.0])  # after the last ODOM: it holds
+    assert [f.index for f in frames] == [0, 1, 2]

@@ -109,7 +109,8 @@ def test_full_session_delivers_intact_scans_and_never_a_corrupted_one(office, ra
 
 
 def test_reconnects_after_a_power_cycle(office) -> None:
-    source = ScanSource(office, SickDevice.sensor_model(), max_scans=200)
+    source = ScanSource(office, SickDevice.sensor_model(), max_scans=300)
+    marks: dict[str, float] = {}
     with SickDevice(source, speed=5.0) as device:
         driver = SickLms2xx(device.port, baudrate=38400, silence=0.3, backoff=0.05)
 
@@ -117,11 +118,15 @@ def test_reconnects_after_a_power_cycle(office) -> None:
             time.sleep(1.0)
             device.go_silent()
             time.sleep(0.8)
+            marks["sent"] = len(device.sent)
+            marks["time"] = time.time()
             device.power_on()  # back at 9600, request mode, the 0.5 degree variant
 
-        frames = _run(driver, device, seconds=20.0, during=cycle)
+        frames = _run(driver, device, seconds=30.0, during=cycle)
     assert device.boots == 2
     assert driver.stats.timeouts >= 1 and driver.stats.reconnects >= 1
-    before = [f for f in frames if f.index < 30]
-    assert before and len(frames) > len(before) + 40  # scans flowed again after the cycle
-    assert all(f.num_beams == 181 for f in frames)
+    after = [f for f in frames if f.stamp > marks["time"]]
+    sent_after = len(device.sent) - marks["sent"]
+    assert sent_after >= 10  # the driver brought the rebooted LMS back to streaming
+    assert len(after) >= sent_after - 1  # and took every scan it streamed since
+    assert all(f.num_beams == 181 for f in frames)  # the 1 degree variant was set again

@@ -319,7 +319,9 @@ def cmd_map(args: argparse.Namespace) -> int:
         if log.problems and not args.quiet:
             print(log.summary(), file=sys.stderr)
     out = new_results_dir(args.out, name)
-    metrics = write_results(out, pipeline, np.array(stamps), args.source, args.resolution)
+    extra = _against_reference(log, pipeline, out, np.array(stamps))
+    metrics = write_results(out, pipeline, np.array(stamps), args.source, args.resolution,
+                            extra=extra)
     if view is not None:
         from vmp.export import read_ros_map
 
@@ -342,6 +344,28 @@ def cmd_map(args: argparse.Namespace) -> int:
         print(f"  grid        {out / 'grid.yaml'} (+ grid.pgm, grid.png, grid.npy)")
         print(f"  contours    {out / 'contours.geojson'};  graph {out / 'graph.json'}")
     return 0
+
+
+def _against_reference(log, pipeline, out: Path, stamps: np.ndarray) -> dict:
+    """ATE against the poses a recording carries as a reference (GMapping's, in Radish logs).
+
+    Scans are paired by order (some of those logs have no usable stamps); the reference is
+    written beside the trajectory as ``reference.tum``.
+    """
+    from vmp.evaluate import ate
+    from vmp.tum import write_tum
+
+    ref = getattr(log, "reference", None)
+    if not ref or len(ref) != len(stamps):
+        return {}
+    poses = np.array([p for _, p in ref])
+    write_tum(out / "reference.tum", stamps, poses)
+    order = np.arange(len(poses), dtype=np.float64)
+    extra = {"unknown odometry increments": getattr(log, "unknown_increments", 0)}
+    extra["ATE vs GMapping's poses (m)"] = ate(order, pipeline.trajectory(), order, poses).rmse
+    extra["ATE of odometry vs GMapping's poses (m)"] = ate(
+        order, np.array(pipeline.odometry), order, poses).rmse
+    return extra
 
 
 def _map_file(result: Path) -> Path:

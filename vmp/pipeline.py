@@ -107,7 +107,9 @@ class Pipeline:
         self.odometry: list[FloatArray] = []
         self.truth: list[FloatArray | None] = []
         self._refs: dict[int, Reference] = {}
-        self._last_odom: FloatArray | None = None
+        self._last_odom: FloatArray | None = None  # the odometry of the scan before
+        self._odom_pose = np.zeros(3)  # where odometry alone puts the robot
+        self._odom_offset = np.zeros(3)  # odometry frame -> that pose, after any gaps
         self._last_corrected = -1  # index of the scan the last correction was spread to
         self._pending: FloatArray | None = None  # pose before this scan's correction
         self._anchor_reg: Registration | None = None  # this scan's accepted anchor match
@@ -129,13 +131,22 @@ class Pipeline:
 
     def predict(self, frame: ScanFrame) -> None:
         self._stamp = frame.stamp
-        odom = frame.odom if frame.odom is not None else np.zeros(3)
+        odom = frame.odom
         if self.filter is None:
-            start = odom if frame.odom is not None else np.zeros(3)
+            start = odom if odom is not None else np.zeros(3)
             self.filter = PoseFilter(start, np.diag(np.square(self.config.initial_sigma)),
                                      self.config.motion)
+            self._odom_pose = start.copy()
         else:
-            wheel = relative(self._last_odom, odom) if frame.odom is not None else None
+            # The wheel increment is known when this scan and the one before carry odometry.
+            wheel = (relative(self._last_odom, odom)
+                     if odom is not None and self._last_odom is not None else None)
+            if odom is None:
+                pass  # odometry alone knows no motion here: its pose holds
+            elif wheel is None:  # odometry resumes: continue from where it stopped
+                self._odom_offset = compose(self._odom_pose, inverse(odom))
+            if odom is not None:
+                self._odom_pose = compose(self._odom_offset, odom)
             u, q = self.scan_odometry.increment(frame.points(), wheel)
             self.filter.predict(u, q)
             th = self.filter.pose[2]
@@ -257,7 +268,7 @@ class Pipeline:
             self.map.spread(self._last_corrected + 1, correction)
             self._last_corrected = k
         self.online.append(self.filter.pose.copy())
-        self.odometry.append(self._last_odom.copy())
+        self.odometry.append(self._odom_pose.copy())
         self.truth.append(None if frame.true_pose is None else frame.true_pose.copy())
         if self.config.use_milestones:
             new = self.milestones.consider(self.filter.pose, frame.ranges, frame.angle_min,
@@ -281,7 +292,7 @@ class Pipeline:
             "covariance_trace": float(np.trace(self.filter.covariance[:2, :2])),
         }
         hits = np.unpackbits(self.map.packed_hits[k], count=self.geometry.num_beams).astype(bool)
-        self.view.scan(k, frame.stamp, self.filter.pose, self._last_odom, frame.true_pose,
+        self.view.scan(k, frame.stamp, self.filter.pose, self._odom_pose, frame.true_pose,
                        int(self.map.segments[k]), self.map.rel_poses[k], self.map.end_points[k],
                        hits, metrics)
         for m in matches:
