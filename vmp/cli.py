@@ -477,7 +477,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     import math
 
-    from vmp.evaluate import ate, read_relations, relation_error, rpe
+    from vmp.evaluate import ate, read_relations, relation_error, relation_errors, rpe
     from vmp.tum import read_tum
 
     if not args.ground_truth and not args.relations:
@@ -496,10 +496,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(f"RPE  trans rmse {r.trans_rmse:.4f} m  rot rmse {math.degrees(r.rot_rmse):.4f} "
               f"deg  (delta {r.delta} frames, {r.pairs} pairs)")
     if args.relations:
-        rel = relation_error(stamps, poses, read_relations(args.relations))
+        relations = read_relations(args.relations)
+        rel = relation_error(stamps, poses, relations)
         print(f"relations  trans {rel.trans_mean:.4f} +- {rel.trans_std:.4f} m  rot "
               f"{math.degrees(rel.rot_mean):.3f} +- {math.degrees(rel.rot_std):.3f} deg  "
               f"({rel.used} of {rel.total} relations)")
+        span, et, er = relation_errors(stamps, poses, relations)
+        print("  by time between the two poses:")
+        for lo, hi in ((0, 10), (10, 60), (60, 300), (300, math.inf)):
+            m = (span >= lo) & (span < hi)
+            if m.any():
+                print(f"  {lo:>4}-{hi:<4g} s  {int(m.sum()):>5} relations  trans "
+                      f"{et[m].mean():.4f} m  rot {math.degrees(er[m].mean()):.3f} deg  "
+                      f"({et[m].sum() / et.sum():.0%} of the total error)")
     return 0
 
 
