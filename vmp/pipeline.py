@@ -261,7 +261,8 @@ class Pipeline:
             self._maybe_switch_anchor(matches)
         anchor_pose = self.milestones.pose(self.anchor)
         before = self._pending if self._pending is not None else self.filter.pose
-        k = self.map.insert(frame.ranges, relative(anchor_pose, before), frame.stamp)
+        k = self.map.insert(frame.ranges, relative(anchor_pose, before), frame.stamp,
+                            frame.no_return_free)
         if self._pending is not None:
             correction = compose(relative(anchor_pose, self.filter.pose),
                                  inverse(relative(anchor_pose, before)))
