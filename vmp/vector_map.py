@@ -114,7 +114,9 @@ class VectorMap:
             raise ValueError(f"expected {self.geometry.num_beams} ranges, got {r.shape}")
         hit = np.isfinite(r)
         reach = self.free_range if free_range is None else min(self.free_range, free_range)
-        free = np.where(hit, r, reach)
+        # Vertices piled up on the scanner would make the polygon touch itself: "no free
+        # space" keeps a 2 cm fan around the scanner instead.
+        free = np.where(hit, r, max(reach, 0.02))
         pts = np.stack([free * self._cos, free * self._sin], axis=-1)
         self._points.append(pts)
         self._hits.append(np.packbits(hit))
