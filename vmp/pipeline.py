@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from milestones.manager import ManagerConfig, MilestoneManager
+from vmp.correlative import CorrelativeConfig, LikelihoodGrid, correlative_search, grid_for
 from vmp.fusion import CHI2_3DOF_99, MotionNoise, PoseFilter, pose_residual
 from vmp.pose_graph import PoseGraph
 from vmp.registration import Reference, Registration, RegistrationConfig, register
@@ -62,6 +63,17 @@ class PipelineConfig:
     candidates: int = 2  # signature candidates registered per query, besides the anchor
     retry_max_ratio: float = 0.7  # a signature match registered from the node itself needs a
     retry_min_inliers: float = 0.75  # clearer place and a closer fit
+    # A loop candidate (a signature match to a milestone far back along the path) that ICP
+    # cannot register from the prediction nor from the node: search a window around the node
+    # exhaustively (vmp/correlative.py), refine with ICP, accept only a clear peak.
+    loop_search: CorrelativeConfig = field(default_factory=CorrelativeConfig)
+    use_loop_search: bool = True
+    search_every: int = 5  # scans between two searches for the same milestone
+    search_max_ratio: float = 0.85  # runner-up / peak score above which the place is ambiguous
+    search_min_score: float = 0.4  # mean likelihood of the live points at the peak
+    search_min_inliers: float = 0.5  # share of live points the ICP refinement must match
+    search_max_shift: float = 0.2  # ICP may move this far from the peak (m) ...
+    search_max_turn: float = math.radians(4.0)  # ... and turn this much
     query_every: int = 1  # scans between signature queries (the anchor is matched every scan)
     switch_margin: float = 0.3  # switch anchor when another milestone is this much nearer (m)
     loop_separation: int = 5  # milestones this many recordings apart may close a loop
@@ -85,6 +97,7 @@ class Match:
     score: float  # the signature score (nan for the anchor)
     accepted: bool
     reason: str  # why it was rejected ("" when accepted)
+    seed: str = "prediction"  # the registration's start: "prediction", "node" or "search"
 
 
 class Pipeline:
@@ -107,6 +120,8 @@ class Pipeline:
         self.odometry: list[FloatArray] = []
         self.truth: list[FloatArray | None] = []
         self._refs: dict[int, Reference] = {}
+        self._grids: dict[int, LikelihoodGrid] = {}  # loop-search grids of milestones
+        self._searched: dict[int, int] = {}  # milestone -> scan index of its last search
         self._last_odom: FloatArray | None = None  # the odometry of the scan before
         self._odom_pose = np.zeros(3)  # where odometry alone puts the robot
         self._odom_offset = np.zeros(3)  # odometry frame -> that pose, after any gaps
@@ -197,6 +212,7 @@ class Pipeline:
         if offset is not None and P[2, 2] > math.radians(10) ** 2:
             guess[2] = offset  # an uncertain heading: trust the signature's instead
         reg = register(self._reference(mid), points, guess, c.registration)
+        seed = "prediction"
         if source == "signature" and offset is not None and not self._fits(reg):
             # The prediction may have drifted far (a loop after a long way round): a matching
             # signature says the robot stands near the node, turned by the offset.
@@ -205,7 +221,11 @@ class Pipeline:
             # Only a clear place and a close fit: this guess ignores the prediction.
             if (self._fits(retry) and ratio <= c.retry_max_ratio
                     and retry.inliers >= c.retry_min_inliers):
-                reg = retry
+                reg, seed = retry, "node"
+            elif self._search_due(mid):
+                found = self._loop_search(mid, points, offset)
+                if found is not None:
+                    reg, seed = found, "search"
         z = compose(ms_pose, reg.pose)
         rot = np.eye(3)
         rot[:2, :2] = [[math.cos(ms_pose[2]), -math.sin(ms_pose[2])],
@@ -229,7 +249,43 @@ class Pipeline:
             reason = "ambiguous"
         elif d2 > c.gate:
             reason = "gate"
-        return Match(mid, source, reg, z, R, d2, ratio, score, reason == "", reason)
+        return Match(mid, source, reg, z, R, d2, ratio, score, reason == "", reason, seed)
+
+    def _search_due(self, mid: int) -> bool:
+        """Whether a loop search against milestone ``mid`` may run for this scan."""
+        c = self.config
+        if not c.use_loop_search or abs(mid - self.anchor) <= c.loop_separation:
+            return False
+        last = self._searched.get(mid)
+        return last is None or len(self.map) - last >= c.search_every
+
+    def _loop_search(self, mid: int, points: FloatArray, offset: float) -> Registration | None:
+        """Register ``points`` on milestone ``mid`` by a window search around its node.
+
+        The window is centred on the node, turned by the signature's heading offset; the peak
+        must stand clear of every pose a separation away, and its ICP refinement must fit
+        well, match most points and stay near the peak. Returns the refinement, or None.
+        """
+        c = self.config
+        self._searched[mid] = len(self.map)
+        self.stats["loop searches"] += 1
+        grid = self._grids.get(mid)
+        if grid is None:
+            grid = self._grids[mid] = grid_for(self._reference(mid).points, c.loop_search)
+        found = correlative_search(grid, points, np.array([0.0, 0.0, offset]), c.loop_search)
+        if found.score < c.search_min_score or found.ratio > c.search_max_ratio:
+            self.stats["loop searches without a clear peak"] += 1
+            return None
+        reg = register(self._reference(mid), points, found.pose, c.registration)
+        shift = reg.pose - found.pose
+        turn = abs((shift[2] + math.pi) % (2 * math.pi) - math.pi)
+        if (not self._fits(reg) or reg.inliers < c.search_min_inliers
+                or math.hypot(shift[0], shift[1]) > c.search_max_shift
+                or turn > c.search_max_turn):
+            self.stats["loop searches with a poor refinement"] += 1
+            return None
+        self.stats["loop searches found"] += 1
+        return reg
 
     def _fits(self, reg: Registration) -> bool:
         c = self.config
@@ -377,7 +433,12 @@ class Pipeline:
         for m in matches:
             if not m.accepted or m.source != "signature":
                 continue
-            d = float(np.hypot(*(self.milestones.pose(m.milestone)[:2] - x[:2])))
+            if m.seed != "prediction":
+                # Registered from the node, not from the prediction (which, after a long way
+                # round, may be metres off): how far the match puts the robot decides.
+                d = float(np.hypot(*m.registration.pose[:2]))
+            else:
+                d = float(np.hypot(*(self.milestones.pose(m.milestone)[:2] - x[:2])))
             if d + self.config.switch_margin < d_anchor and (best is None or d < best[1]):
                 best = (m, d)
         if best is None:
