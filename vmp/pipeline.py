@@ -74,6 +74,13 @@ class PipelineConfig:
     search_min_inliers: float = 0.5  # share of live points the ICP refinement must match
     search_max_shift: float = 0.2  # ICP may move this far from the peak (m) ...
     search_max_turn: float = math.radians(4.0)  # ... and turn this much
+    # The drift covariances compounded along hundreds of path edges are optimistic (the
+    # odometry's errors are not white); a match registered without the prediction (from the
+    # node or by the search) and verified by its fit is gated on drift covariances inflated
+    # by this factor.
+    loop_drift_inflation: float = 4.0
+    pinned_sigma_xy: float = 0.1  # a registration this certain in every direction pins the
+    pinned_sigma_theta: float = 0.05  # pose (m, rad): the above apply only to such matches
     query_every: int = 1  # scans between signature queries (the anchor is matched every scan)
     switch_margin: float = 0.3  # switch anchor when another milestone is this much nearer (m)
     loop_separation: int = 5  # milestones this many recordings apart may close a loop
@@ -122,6 +129,7 @@ class Pipeline:
         self._refs: dict[int, Reference] = {}
         self._grids: dict[int, LikelihoodGrid] = {}  # loop-search grids of milestones
         self._searched: dict[int, int] = {}  # milestone -> scan index of its last search
+        self._closed: set[tuple[int, int]] = set()  # loops closed without a handover
         self._last_odom: FloatArray | None = None  # the odometry of the scan before
         self._odom_pose = np.zeros(3)  # where odometry alone puts the robot
         self._odom_offset = np.zeros(3)  # odometry frame -> that pose, after any gaps
@@ -238,8 +246,10 @@ class Pipeline:
             spread = R + self._q_since
         else:
             # A return to an old milestone disagrees by the drift of both chains since.
-            spread = R + self.filter.covariance + self._robot_cov_via_anchor() \
-                + self._abs_cov[mid]
+            drift = self.filter.covariance + self._robot_cov_via_anchor() + self._abs_cov[mid]
+            if seed != "prediction" and self._pins(reg):
+                drift = drift * c.loop_drift_inflation
+            spread = R + drift
         y = pose_residual(z, x)
         d2 = float(y @ np.linalg.solve(spread, y))
         reason = ""
@@ -286,6 +296,12 @@ class Pipeline:
             return None
         self.stats["loop searches found"] += 1
         return reg
+
+    def _pins(self, reg: Registration) -> bool:
+        """Whether a registration fixes the pose in every direction (no corridor axis)."""
+        sd = np.sqrt(np.linalg.eigvalsh(reg.covariance[:2, :2]))
+        return bool(sd.max() <= self.config.pinned_sigma_xy
+                    and math.sqrt(reg.covariance[2, 2]) <= self.config.pinned_sigma_theta)
 
     def _fits(self, reg: Registration) -> bool:
         c = self.config
@@ -433,7 +449,7 @@ class Pipeline:
         for m in matches:
             if not m.accepted or m.source != "signature":
                 continue
-            if m.seed != "prediction":
+            if m.seed != "prediction" and self._pins(m.registration):
                 # Registered from the node, not from the prediction (which, after a long way
                 # round, may be metres off): how far the match puts the robot decides.
                 d = float(np.hypot(*m.registration.pose[:2]))
@@ -442,6 +458,7 @@ class Pipeline:
             if d + self.config.switch_margin < d_anchor and (best is None or d < best[1]):
                 best = (m, d)
         if best is None:
+            self._close_in_place(matches)
             return
         m = best[0]
         anchor_pose = self.milestones.pose(self.anchor).copy()
@@ -469,6 +486,36 @@ class Pipeline:
             e = self.graph.error(self.milestones.poses, edge)
             if float(e @ edge.information @ e) > self.config.loop_chi2:
                 self._adjust()
+
+    def _close_in_place(self, matches: list[Match]) -> None:
+        """A loop to a milestone no nearer than the anchor: an edge between the two, no
+        handover.
+
+        The anchor may itself stand at the place seen long ago (recorded there on this visit,
+        or on an earlier one whose loop was never closed), so no handover comes; a match that
+        pins the pose without the prediction's help then still closes the loop, when the
+        graph disagrees with it (once per pair of milestones).
+        """
+        for m in matches:
+            if (not m.accepted or m.source != "signature" or m.seed == "prediction"
+                    or abs(m.milestone - self.anchor) <= self.config.loop_separation
+                    or (self.anchor, m.milestone) in self._closed
+                    or not self._pins(m.registration)):
+                continue
+            rel_a, cov_a = self._robot_in_anchor()
+            z, cov = self._milestone_edge(self.anchor, m.milestone,
+                                          (compose(rel_a, inverse(m.registration.pose)),
+                                           cov_a + m.registration.covariance))
+            edge = self.graph.add(self.anchor, m.milestone, z, cov, "loop")
+            self._closed.add((self.anchor, m.milestone))
+            self.stats["loop edges"] += 1
+            self.stats["loop edges in place"] += 1
+            self.view.event(f"scan {len(self.map)}: loop edge from milestone {edge.i} to "
+                            f"{edge.j} (no handover)")
+            e = self.graph.error(self.milestones.poses, edge)
+            if float(e @ edge.information @ e) > self.config.loop_chi2:
+                self._adjust()
+            return
 
     def _adjust(self) -> None:
         """Adjust the milestone graph; the robot moves with its anchor."""
