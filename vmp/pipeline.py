@@ -78,7 +78,7 @@ class PipelineConfig:
     # odometry's errors are not white); a match registered without the prediction (from the
     # node or by the search) and verified by its fit is gated on drift covariances inflated
     # by this factor.
-    loop_drift_inflation: float = 4.0
+    loop_drift_inflation: float = 2.0
     pinned_sigma_xy: float = 0.1  # a registration this certain in every direction pins the
     pinned_sigma_theta: float = 0.05  # pose (m, rad): the above apply only to such matches
     query_every: int = 1  # scans between signature queries (the anchor is matched every scan)
