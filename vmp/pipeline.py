@@ -4,14 +4,19 @@
 * match: the live scan is registered against the milestone its segment is anchored at, and
   against the stored milestones whose signatures match it within the filter's gate; a match is
   rejected on a poor registration fit, an ambiguous signature (a rival place scores nearly as
-  well), or a failed Mahalanobis gate, and a rejected match changes nothing;
+  well), or a failed Mahalanobis gate, and a rejected match changes nothing; a loop candidate
+  (a milestone far back along the path) that ICP cannot register from the prediction, whose
+  drift after a long way round may be metres, is registered from its node, or found by an
+  exhaustive correlative search around the node (:mod:`vmp.correlative`) and accepted only
+  on a clear peak and a close ICP fit;
 * correct: the filter is updated with the best accepted match (the milestone pose composed
   with the registered relative pose);
 * insert: the scan goes into the open segment as a polygon in the anchor's frame, and the
   correction is spread over the scans since the previous one; when the robot reaches a place
   where it should record a milestone, or comes back to a stored one, the segment closes and the
   next is anchored there; a return adds a loop edge to the milestone graph, whose adjustment
-  moves the milestones and with them their segments;
+  moves the milestones and with them their segments; a loop to a milestone no nearer than the
+  anchor (the anchor stands at the same place) adds its edge without a handover;
 * show: the view (a null view when nobody watches) gets what happened.
 """
 
