@@ -391,17 +391,19 @@ def test_session_with_a_step_range_and_clusters():
 
 
 def test_reconnects_after_the_device_falls_silent_and_comes_back_power_cycled():
-    with HokuyoDevice(_source(600), speed=10.0) as dev:
+    # A long run (scans are ray-cast lazily) and generous deadlines: a loaded machine may
+    # take seconds to notice the silence, and the device clock runs on meanwhile.
+    with HokuyoDevice(_source(3000), speed=10.0) as dev:
         drv = HokuyoScip2Driver(dev.port, silence=0.3, backoff=0.05, backoff_max=0.2,
                                 reply_timeout=0.15)
         session = Session(drv)
-        session.wait(lambda: len(session.frames) >= 10, 5.0, "the first scans")
+        session.wait(lambda: len(session.frames) >= 10, 20.0, "the first scans")
         dev.go_silent()
-        session.wait(lambda: drv.stats.timeouts >= 1, 3.0, "the silence to be noticed")
+        session.wait(lambda: drv.stats.timeouts >= 1, 10.0, "the silence to be noticed")
         time.sleep(0.3)
         before, md_before = len(session.frames), dev.commands.count(b"MD0044072501000")
         dev.power_on()  # boots with the laser off and nothing streaming
-        session.wait(lambda: len(session.frames) >= before + 10, 5.0, "scans after power-on")
+        session.wait(lambda: len(session.frames) >= before + 10, 20.0, "scans after power-on")
         session.stop()
     assert drv.stats.timeouts >= 1 and drv.stats.reconnects >= 1
     assert drv.stats.failed_connects >= 1  # attempts while it was off

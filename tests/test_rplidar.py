@@ -346,16 +346,16 @@ def test_corrupted_session_measures_what_gets_through():
 
 
 def test_reconnects_after_silence_and_boot_banner():
-    dev = make_device(400, speed=8.0)
+    dev = make_device(3000, speed=8.0)
     drv = RplidarDriver(dev.port, silence=0.3, reply_timeout=0.2, reset_wait=0.3)
     with dev, Session(drv) as s:
-        s.wait(lambda: len(s.frames) >= 10, 5.0, "first scans")
+        s.wait(lambda: len(s.frames) >= 10, 20.0, "first scans")
         dev.go_silent()
-        s.wait(lambda: drv.stats.timeouts >= 1, 3.0, "the silence to be noticed")
+        s.wait(lambda: drv.stats.timeouts >= 1, 10.0, "the silence to be noticed")
         time.sleep(0.3)  # reconnect attempts against a dead device
         before = len(s.frames)
         dev.power_on()
-        s.wait(lambda: len(s.frames) >= before + 10, 5.0, "scans after power-on")
+        s.wait(lambda: len(s.frames) >= before + 10, 20.0, "scans after power-on")
     assert drv.stats.timeouts >= 1 and drv.stats.reconnects >= 1
     assert drv.stats.failed_connects >= 1  # the powered-off device did not answer
     assert drv.stats.rejected == 0
