@@ -10,7 +10,7 @@ wins, where it is not (along a featureless corridor) the wheels do. This goes be
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -41,6 +41,10 @@ class ScanOdometryConfig:
     # in the latest's frame. One sparse scan rarely samples a rack upright's side or a pallet's
     # end well enough to see motion along an aisle; a few keyframes together do.
     submap_keyframes: int = 6
+    # Registration here is checked against the wheels (``gate``) and fused with them by
+    # information, so it may keep a weaker constraint than a milestone match (the rack uprights
+    # seen along a one-sided aisle): the registration's ``min_constraint`` for scan odometry.
+    min_constraint: float | None = 4.0
 
 
 def motion_covariance(u: FloatArray, noise: MotionNoise) -> FloatArray:
@@ -56,6 +60,8 @@ class ScanOdometry:
 
     def __init__(self, config: ScanOdometryConfig, registration: RegistrationConfig,
                  noise: MotionNoise) -> None:
+        if config.min_constraint is not None:
+            registration = replace(registration, min_constraint=config.min_constraint)
         self.config, self.registration, self.noise = config, registration, noise
         self._key: Reference | None = None
         self._rel = np.zeros(3)  # the last scan's pose in the keyframe's frame
