@@ -69,6 +69,9 @@ class PipelineConfig:
     min_points: int = 20  # fewer returns than this: the scan is not matched
     no_return_free_range: float = 10.0  # how far a beam without a return marks free space (m)
     initial_sigma: tuple[float, float, float] = (0.01, 0.01, math.radians(0.5))
+    # After a handover the robot's pose in the new anchor's frame keeps the gate's spread where
+    # the registration does not see (helps the warehouse with a submap; costs the office: open).
+    handover_covariance: bool = False
 
 
 @dataclass(frozen=True)
@@ -413,7 +416,8 @@ class Pipeline:
         th = self.milestones.pose(m.milestone)[2]
         rot = np.array([[math.cos(th), -math.sin(th), 0.0], [math.sin(th), math.cos(th), 0.0],
                         [0.0, 0.0, 1.0]])
-        self._handover_cov = rot.T @ in_map @ rot
+        if self.config.handover_covariance:
+            self._handover_cov = rot.T @ in_map @ rot
         self.view.event(f"scan {len(self.map)}: handed over from milestone {edge.i} to "
                         f"{edge.j} ({edge.kind} edge)")
         if edge.kind == "loop":
