@@ -2,8 +2,13 @@
 
 Tokens: 0 time (microseconds), 2 and 3 left / right wheel ticks (cumulative), 24 onwards the
 ranges in millimetres (0 = no return) of a Hokuyo URG-04LX, 682 beams over 240 degrees; the
-last token is not a range (BreezySLAM drops it too). The wheels (radius 77 mm, half axle
-165 mm, 2000 ticks a turn) give the odometry; the laser sits 145 mm ahead of the axle.
+last token is not a range (BreezySLAM drops it too). Over half the readings are 0, and a 0
+of the URG-04LX is an error code (nothing seen, a weak or dazzling echo, a step it could not
+measure) as often as open space: it proves no free space, so those beams do not mark any
+(``no_return_free=0``); walls behind a dark surface are not cleared.
+
+The wheels (radius 77 mm, half axle 165 mm, 2000 ticks a turn) give the odometry; the laser
+sits 145 mm ahead of the axle.
 """
 
 from __future__ import annotations
@@ -62,4 +67,5 @@ class BreezySlamLog(LineLog):
             self._line = no
             yield ScanFrame(stamp=values[0] * 1e-6, ranges=ranges, angle_min=-FOV / 2,
                             angle_increment=FOV / (BEAMS - 1), max_range=MAX_RANGE,
-                            odom=compose(pose, LASER_OFFSET), index=self.scans)
+                            odom=compose(pose, LASER_OFFSET), index=self.scans,
+                            no_return_free=0.0)

@@ -304,6 +304,7 @@ def read_carmen(path: str | os.PathLike[str], strict: bool = False) -> Iterator[
     return iter(CarmenLog(path, strict=strict))
 
 
+_SICK_NO_RETURN_MM = np.array([8191.0, 16383.0, 32767.0])
 _LASER_WORDS = ("FLASER", "ROBOTLASER1", "RAWLASER1", "RAWLASER2", "RAWLASER3", "RAWLASER4")
 
 
@@ -371,6 +372,11 @@ def _parse_laser(kind: str, parts: list[str], params: dict[str, str], index: int
         raise ValueError(f"the pose is not finite ({' '.join(f'{v:g}' for v in poses)})")
     if not math.isfinite(stamp):
         raise ValueError("the timestamp is not finite")
-    ranges = np.where((ranges >= max_range) | (ranges <= 0), np.inf, ranges)
+    no_return = (ranges >= max_range) | (ranges <= 0)
+    if kind == "FLASER" and "robot_front_laser_max" not in params:
+        # Without the laser's range limit, a SICK's no-return codes (8.191, 16.383 and
+        # 32.767 m in its 8, 16 and 32 m mm-modes: all bits of the range set) are not ranges.
+        no_return |= np.isin(np.round(ranges * 1000.0), _SICK_NO_RETURN_MM)
+    ranges = np.where(no_return, np.inf, ranges)
     return ScanFrame(stamp=stamp, ranges=ranges, angle_min=angle_min, angle_increment=inc,
                      max_range=max_range, odom=odom, index=index)

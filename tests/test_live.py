@@ -66,6 +66,8 @@ def test_cli_refuses_simulation_options_on_a_real_port(capsys) -> None:
     assert main(["live", "--driver", "sick", "--port", "/dev/null", "--speed", "3"]) == 2
     assert "--simulate only" in capsys.readouterr().err
     assert main(["live", "--driver", "sick", "--simulate", "office", "--scans", "0"]) == 2
+    assert main(["live", "--driver", "rplidar", "--port", "/dev/ttyUSB-none"]) == 2
+    assert "no such serial port" in capsys.readouterr().err
 
 
 class _InterruptedDriver(ScanDriver):

@@ -36,6 +36,22 @@ def test_scan_polygons_are_valid_even_with_no_returns_and_odd_values():
     assert vm.hits.sum() < 50 * 181 and vm.hits.sum() > 0
 
 
+def test_a_scan_may_mark_no_free_space_along_beams_without_a_return():
+    vm = VectorMap(SICK)
+    vm.new_segment(0)
+    r = np.full(181, 2.0)
+    r[60:120] = np.inf
+    vm.insert(r, np.zeros(3))
+    vm.insert(r, np.zeros(3), free_range=0.0)  # a sensor whose no-return may be an error
+    polys = vm.polygons(vm.world_poses(np.zeros((1, 3))))
+    reach = np.hypot(polys[..., 0], polys[..., 1])
+    beams = slice(61, 121)  # vertex 0 is the scanner
+    assert np.allclose(reach[0, beams], SICK.max_range, atol=1e-5)
+    assert np.allclose(reach[1, beams], 0.02, atol=1e-5)  # a 2 cm fan keeps it valid
+    areas = shapely.area(shapely.polygons(polys))
+    assert areas[1] < areas[0] and shapely.is_valid(shapely.polygons(polys)).all()
+
+
 def test_full_circle_scans_make_valid_polygons_without_the_origin():
     geom = BeamGeometry(360, -math.pi, math.radians(1), 8.0)
     vm = VectorMap(geom)

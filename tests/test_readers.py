@@ -53,6 +53,8 @@ def test_breezyslam_excerpt_ticks_to_odometry(tmp_path):
     f = frames[0]
     assert f.num_beams == 682 and math.isclose(f.field_of_view, math.radians(240) * 682 / 681)
     assert 0.3 < f.returned.mean() < 0.8  # zeros are no return
+    assert f.no_return_free == 0.0  # and prove no free space (a URG 0 is also an error code)
+    assert (f.free_ranges()[~f.returned] == 0).all()
     assert np.nanmax(f.ranges[f.returned]) < 5.6
     np.testing.assert_allclose(f.odom, [0.145, 0.0, 0.0], atol=1e-12)  # laser ahead of axle
     steps = np.hypot(*np.diff(np.array([g.odom[:2] for g in frames]), axis=0).T)

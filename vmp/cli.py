@@ -425,20 +425,26 @@ def cmd_info(args: argparse.Namespace) -> int:
     log = open_recording(path, args.format, scan_topic=args.scan_topic,
                          odom_topic=args.odom_topic)
     n = 0
-    first = last = None
+    first = None
     beams = set()
     t0, t1 = math.inf, -math.inf
     odom_moves = False
     has_odom = True
     returned = 0.0
+    with_odom = 0
+    first_odom = last_odom = None
     for frame in log:  # one pass, constant memory
         if frame.odom is None:
             has_odom = False
+        else:
+            with_odom += 1
+            if first_odom is None:
+                first_odom = frame.odom
+            elif not odom_moves and not np.array_equal(frame.odom, first_odom):
+                odom_moves = True
+            last_odom = frame.odom
         if first is None:
             first = frame
-        elif has_odom and not odom_moves and not np.array_equal(frame.odom, first.odom):
-            odom_moves = True
-        last = frame
         n += 1
         beams.add(frame.num_beams)
         t0, t1 = min(t0, frame.stamp), max(t1, frame.stamp)
@@ -454,11 +460,16 @@ def cmd_info(args: argparse.Namespace) -> int:
           f"{math.degrees(first.angle_increment):.4f} deg")
     print(f"max range     {first.max_range:g} m; {100 * returned / n:.0f} % of beams return")
     print(f"duration      {t1 - t0:.1f} s ({t0:.3f} .. {t1:.3f})")
-    if not has_odom:
+    if last_odom is None:
         print("odometry      none: vmp map registers the scans alone")
     else:
-        print(f"odometry      {'yes' if odom_moves else 'none (constant pose)'}; last "
-              f"({last.odom[0]:.2f}, {last.odom[1]:.2f}, {math.degrees(last.odom[2]):.1f} deg)")
+        some = "" if has_odom else f" in {with_odom} of {n} scans (the others are registered alone)"
+        print(f"odometry      {'yes' if odom_moves else 'none (constant pose)'}{some}; last "
+              f"({last_odom[0]:.2f}, {last_odom[1]:.2f}, {math.degrees(last_odom[2]):.1f} deg)")
+    if getattr(log, "gmapping", False):
+        print(f"note          GMapping output log: odometry rebuilt from its ODOM lines "
+              f"({log.unknown_increments} of {n - 1} increments unknown); its corrected poses "
+              f"are the reference")
     if log.topics is not None:
         chosen = (getattr(log, "chosen_scan", None), getattr(log, "chosen_odom", None))
         print("topics")
@@ -477,7 +488,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     import math
 
-    from vmp.evaluate import ate, read_relations, relation_error, rpe
+    from vmp.evaluate import ate, read_relations, relation_error, relation_errors, rpe
     from vmp.tum import read_tum
 
     if not args.ground_truth and not args.relations:
@@ -496,10 +507,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(f"RPE  trans rmse {r.trans_rmse:.4f} m  rot rmse {math.degrees(r.rot_rmse):.4f} "
               f"deg  (delta {r.delta} frames, {r.pairs} pairs)")
     if args.relations:
-        rel = relation_error(stamps, poses, read_relations(args.relations))
+        relations = read_relations(args.relations)
+        rel = relation_error(stamps, poses, relations)
         print(f"relations  trans {rel.trans_mean:.4f} +- {rel.trans_std:.4f} m  rot "
               f"{math.degrees(rel.rot_mean):.3f} +- {math.degrees(rel.rot_std):.3f} deg  "
               f"({rel.used} of {rel.total} relations)")
+        span, et, er = relation_errors(stamps, poses, relations)
+        print("  by time between the two poses:")
+        for lo, hi in ((0, 10), (10, 60), (60, 300), (300, math.inf)):
+            m = (span >= lo) & (span < hi)
+            if m.any():
+                print(f"  {lo:>4}-{hi:<4g} s  {int(m.sum()):>5} relations  trans "
+                      f"{et[m].mean():.4f} m  rot {math.degrees(er[m].mean()):.3f} deg  "
+                      f"({et[m].sum() / et.sum():.0%} of the total error)")
     return 0
 
 

@@ -102,6 +102,9 @@ def cmd_live(args: argparse.Namespace) -> int:
                 odometry = feed.port
         else:
             port = args.port
+            if "://" not in port and not Path(port).exists():
+                raise InputError(f"{port}: no such serial port (ls /dev/ttyUSB* /dev/ttyACM* "
+                                 "lists the connected ones)")
         try:
             driver = open_scanner(args.driver, port, **options)
         except ValueError as exc:

@@ -116,9 +116,10 @@ def read_relations(path: str | Path) -> FloatArray:
     return a[:, [0, 1, 2, 3, 7]]
 
 
-def relation_error(stamps: FloatArray, poses: FloatArray, relations: FloatArray,
-                   max_difference: float = 1e-4) -> RelationError:
-    """Kümmerle et al.'s metric: error of each relative pose against its true relation."""
+def relation_errors(stamps: FloatArray, poses: FloatArray, relations: FloatArray,
+                    max_difference: float = 1e-4) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Per relation whose stamps both match a pose: its time span (s), translational (m)
+    and rotational (rad) error, as Kümmerle et al. define them."""
     s = np.asarray(stamps, dtype=np.float64)
     order = np.argsort(s, kind="stable")
     ss = s[order]
@@ -138,7 +139,13 @@ def relation_error(stamps: FloatArray, poses: FloatArray, relations: FloatArray,
     delta = relative(p[i1[ok]], p[i2[ok]])
     rel = relations[ok][:, 2:5]
     err = compose(inverse(rel), delta)
-    t = np.hypot(err[:, 0], err[:, 1])
-    r = np.abs(wrap_angle(err[:, 2]))
+    span = np.abs(relations[ok, 1] - relations[ok, 0])
+    return span, np.hypot(err[:, 0], err[:, 1]), np.abs(wrap_angle(err[:, 2]))
+
+
+def relation_error(stamps: FloatArray, poses: FloatArray, relations: FloatArray,
+                   max_difference: float = 1e-4) -> RelationError:
+    """Kümmerle et al.'s metric: error of each relative pose against its true relation."""
+    _, t, r = relation_errors(stamps, poses, relations, max_difference)
     return RelationError(float(t.mean()), float(t.std()), float(r.mean()), float(r.std()),
-                         int(ok.sum()), len(relations))
+                         len(t), len(relations))

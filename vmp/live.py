@@ -127,9 +127,16 @@ def run_live(driver: ScanDriver, config: PipelineConfig, options: LiveOptions, *
                           comment=f"vmp live, {driver.name} on {driver.port}")
     stop = threading.Event()
     started = time.monotonic()
+    stamps: list[float] = []
 
     def watchdog() -> None:  # ends the frame loop, which only wakes up on data
+        warned = False
         while not stop.wait(0.05):
+            if not warned and not stamps and time.monotonic() - started > 5.0:
+                warned = True
+                why = driver.last_error or "no answer yet"
+                print(f"live: no scan from {driver.name} on {driver.port} after 5 s ({why}); "
+                      "still trying, Ctrl-C to stop", file=sys.stderr, flush=True)
             over = options.duration is not None and time.monotonic() - started > options.duration
             done = bool(devices) and devices[0].finished.is_set()
             if over or done:
@@ -144,7 +151,6 @@ def run_live(driver: ScanDriver, config: PipelineConfig, options: LiveOptions, *
         total = len(devices[0].source)
     progress = Progress(total, f"live {driver.name}", enabled=False if options.quiet else None)
     pipeline: Pipeline | None = None
-    stamps: list[float] = []
     waiting = 0
     interrupted = False
     last_flush = time.monotonic()

@@ -4,14 +4,19 @@
 * match: the live scan is registered against the milestone its segment is anchored at, and
   against the stored milestones whose signatures match it within the filter's gate; a match is
   rejected on a poor registration fit, an ambiguous signature (a rival place scores nearly as
-  well), or a failed Mahalanobis gate, and a rejected match changes nothing;
+  well), or a failed Mahalanobis gate, and a rejected match changes nothing; a loop candidate
+  (a milestone far back along the path) that ICP cannot register from the prediction, whose
+  drift after a long way round may be metres, is registered from its node, or found by an
+  exhaustive correlative search around the node (:mod:`vmp.correlative`) and accepted only
+  on a clear peak and a close ICP fit;
 * correct: the filter is updated with the best accepted match (the milestone pose composed
   with the registered relative pose);
 * insert: the scan goes into the open segment as a polygon in the anchor's frame, and the
   correction is spread over the scans since the previous one; when the robot reaches a place
   where it should record a milestone, or comes back to a stored one, the segment closes and the
   next is anchored there; a return adds a loop edge to the milestone graph, whose adjustment
-  moves the milestones and with them their segments;
+  moves the milestones and with them their segments; a loop to a milestone no nearer than the
+  anchor (the anchor stands at the same place) adds its edge without a handover;
 * show: the view (a null view when nobody watches) gets what happened.
 """
 
@@ -25,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from milestones.manager import ManagerConfig, MilestoneManager
+from vmp.correlative import CorrelativeConfig, LikelihoodGrid, correlative_search, grid_for
 from vmp.fusion import CHI2_3DOF_99, MotionNoise, PoseFilter, pose_residual
 from vmp.pose_graph import PoseGraph
 from vmp.registration import Reference, Registration, RegistrationConfig, register
@@ -62,6 +68,24 @@ class PipelineConfig:
     candidates: int = 2  # signature candidates registered per query, besides the anchor
     retry_max_ratio: float = 0.7  # a signature match registered from the node itself needs a
     retry_min_inliers: float = 0.75  # clearer place and a closer fit
+    # A loop candidate (a signature match to a milestone far back along the path) that ICP
+    # cannot register from the prediction nor from the node: search a window around the node
+    # exhaustively (vmp/correlative.py), refine with ICP, accept only a clear peak.
+    loop_search: CorrelativeConfig = field(default_factory=CorrelativeConfig)
+    use_loop_search: bool = True
+    search_every: int = 5  # scans between two searches for the same milestone
+    search_max_ratio: float = 0.85  # runner-up / peak score above which the place is ambiguous
+    search_min_score: float = 0.4  # mean likelihood of the live points at the peak
+    search_min_inliers: float = 0.5  # share of live points the ICP refinement must match
+    search_max_shift: float = 0.2  # ICP may move this far from the peak (m) ...
+    search_max_turn: float = math.radians(4.0)  # ... and turn this much
+    # The drift covariances compounded along hundreds of path edges are optimistic (the
+    # odometry's errors are not white); a match registered without the prediction (from the
+    # node or by the search) and verified by its fit is gated on drift covariances inflated
+    # by this factor.
+    loop_drift_inflation: float = 2.0
+    pinned_sigma_xy: float = 0.1  # a registration this certain in every direction pins the
+    pinned_sigma_theta: float = 0.05  # pose (m, rad): the above apply only to such matches
     query_every: int = 1  # scans between signature queries (the anchor is matched every scan)
     switch_margin: float = 0.3  # switch anchor when another milestone is this much nearer (m)
     loop_separation: int = 5  # milestones this many recordings apart may close a loop
@@ -88,6 +112,7 @@ class Match:
     score: float  # the signature score (nan for the anchor)
     accepted: bool
     reason: str  # why it was rejected ("" when accepted)
+    seed: str = "prediction"  # the registration's start: "prediction", "node" or "search"
 
 
 class Pipeline:
@@ -110,6 +135,9 @@ class Pipeline:
         self.odometry: list[FloatArray] = []
         self.truth: list[FloatArray | None] = []
         self._refs: dict[int, Reference] = {}
+        self._grids: dict[int, LikelihoodGrid] = {}  # loop-search grids of milestones
+        self._searched: dict[int, int] = {}  # milestone -> scan index of its last search
+        self._closed: set[tuple[int, int]] = set()  # loops closed without a handover
         self._last_odom: FloatArray | None = None  # the odometry of the scan before
         self._odom_pose = np.zeros(3)  # where odometry alone puts the robot
         self._odom_offset = np.zeros(3)  # odometry frame -> that pose, after any gaps
@@ -204,6 +232,7 @@ class Pipeline:
         if offset is not None and P[2, 2] > math.radians(10) ** 2:
             guess[2] = offset  # an uncertain heading: trust the signature's instead
         reg = register(self._reference(mid), points, guess, c.registration)
+        seed = "prediction"
         if source == "signature" and offset is not None and not self._fits(reg):
             # The prediction may have drifted far (a loop after a long way round): a matching
             # signature says the robot stands near the node, turned by the offset.
@@ -212,7 +241,11 @@ class Pipeline:
             # Only a clear place and a close fit: this guess ignores the prediction.
             if (self._fits(retry) and ratio <= c.retry_max_ratio
                     and retry.inliers >= c.retry_min_inliers):
-                reg = retry
+                reg, seed = retry, "node"
+            elif self._search_due(mid):
+                found = self._loop_search(mid, points, offset)
+                if found is not None:
+                    reg, seed = found, "search"
         z = compose(ms_pose, reg.pose)
         rot = np.eye(3)
         rot[:2, :2] = [[math.cos(ms_pose[2]), -math.sin(ms_pose[2])],
@@ -225,8 +258,10 @@ class Pipeline:
             spread = R + self._q_since
         else:
             # A return to an old milestone disagrees by the drift of both chains since.
-            spread = R + self.filter.covariance + self._robot_cov_via_anchor() \
-                + self._abs_cov[mid]
+            drift = self.filter.covariance + self._robot_cov_via_anchor() + self._abs_cov[mid]
+            if seed != "prediction" and self._pins(reg):
+                drift = drift * c.loop_drift_inflation
+            spread = R + drift
         y = pose_residual(z, x)
         d2 = float(y @ np.linalg.solve(spread, y))
         reason = ""
@@ -236,7 +271,49 @@ class Pipeline:
             reason = "ambiguous"
         elif d2 > c.gate:
             reason = "gate"
-        return Match(mid, source, reg, z, R, d2, ratio, score, reason == "", reason)
+        return Match(mid, source, reg, z, R, d2, ratio, score, reason == "", reason, seed)
+
+    def _search_due(self, mid: int) -> bool:
+        """Whether a loop search against milestone ``mid`` may run for this scan."""
+        c = self.config
+        if not c.use_loop_search or abs(mid - self.anchor) <= c.loop_separation:
+            return False
+        last = self._searched.get(mid)
+        return last is None or len(self.map) - last >= c.search_every
+
+    def _loop_search(self, mid: int, points: FloatArray, offset: float) -> Registration | None:
+        """Register ``points`` on milestone ``mid`` by a window search around its node.
+
+        The window is centred on the node, turned by the signature's heading offset; the peak
+        must stand clear of every pose a separation away, and its ICP refinement must fit
+        well, match most points and stay near the peak. Returns the refinement, or None.
+        """
+        c = self.config
+        self._searched[mid] = len(self.map)
+        self.stats["loop searches"] += 1
+        grid = self._grids.get(mid)
+        if grid is None:
+            grid = self._grids[mid] = grid_for(self._reference(mid).points, c.loop_search)
+        found = correlative_search(grid, points, np.array([0.0, 0.0, offset]), c.loop_search)
+        if found.score < c.search_min_score or found.ratio > c.search_max_ratio:
+            self.stats["loop searches without a clear peak"] += 1
+            return None
+        reg = register(self._reference(mid), points, found.pose, c.registration)
+        shift = reg.pose - found.pose
+        turn = abs((shift[2] + math.pi) % (2 * math.pi) - math.pi)
+        if (not self._fits(reg) or reg.inliers < c.search_min_inliers
+                or math.hypot(shift[0], shift[1]) > c.search_max_shift
+                or turn > c.search_max_turn):
+            self.stats["loop searches with a poor refinement"] += 1
+            return None
+        self.stats["loop searches found"] += 1
+        return reg
+
+    def _pins(self, reg: Registration) -> bool:
+        """Whether a registration fixes the pose in every direction (no corridor axis)."""
+        sd = np.sqrt(np.linalg.eigvalsh(reg.covariance[:2, :2]))
+        return bool(sd.max() <= self.config.pinned_sigma_xy
+                    and math.sqrt(reg.covariance[2, 2]) <= self.config.pinned_sigma_theta)
 
     def _fits(self, reg: Registration) -> bool:
         c = self.config
@@ -268,7 +345,8 @@ class Pipeline:
             self._maybe_switch_anchor(matches)
         anchor_pose = self.milestones.pose(self.anchor)
         before = self._pending if self._pending is not None else self.filter.pose
-        k = self.map.insert(frame.ranges, relative(anchor_pose, before), frame.stamp)
+        k = self.map.insert(frame.ranges, relative(anchor_pose, before), frame.stamp,
+                            frame.no_return_free)
         if self._pending is not None:
             correction = compose(relative(anchor_pose, self.filter.pose),
                                  inverse(relative(anchor_pose, before)))
@@ -385,10 +463,16 @@ class Pipeline:
         for m in matches:
             if not m.accepted or m.source != "signature":
                 continue
-            d = float(np.hypot(*(self.milestones.pose(m.milestone)[:2] - x[:2])))
+            if m.seed != "prediction" and self._pins(m.registration):
+                # Registered from the node, not from the prediction (which, after a long way
+                # round, may be metres off): how far the match puts the robot decides.
+                d = float(np.hypot(*m.registration.pose[:2]))
+            else:
+                d = float(np.hypot(*(self.milestones.pose(m.milestone)[:2] - x[:2])))
             if d + self.config.switch_margin < d_anchor and (best is None or d < best[1]):
                 best = (m, d)
         if best is None:
+            self._close_in_place(matches)
             return
         m = best[0]
         anchor_pose = self.milestones.pose(self.anchor).copy()
@@ -425,6 +509,36 @@ class Pipeline:
             e = self.graph.error(self.milestones.poses, edge)
             if float(e @ edge.information @ e) > self.config.loop_chi2:
                 self._adjust()
+
+    def _close_in_place(self, matches: list[Match]) -> None:
+        """A loop to a milestone no nearer than the anchor: an edge between the two, no
+        handover.
+
+        The anchor may itself stand at the place seen long ago (recorded there on this visit,
+        or on an earlier one whose loop was never closed), so no handover comes; a match that
+        pins the pose without the prediction's help then still closes the loop, when the
+        graph disagrees with it (once per pair of milestones).
+        """
+        for m in matches:
+            if (not m.accepted or m.source != "signature" or m.seed == "prediction"
+                    or abs(m.milestone - self.anchor) <= self.config.loop_separation
+                    or (self.anchor, m.milestone) in self._closed
+                    or not self._pins(m.registration)):
+                continue
+            rel_a, cov_a = self._robot_in_anchor()
+            z, cov = self._milestone_edge(self.anchor, m.milestone,
+                                          (compose(rel_a, inverse(m.registration.pose)),
+                                           cov_a + m.registration.covariance))
+            edge = self.graph.add(self.anchor, m.milestone, z, cov, "loop")
+            self._closed.add((self.anchor, m.milestone))
+            self.stats["loop edges"] += 1
+            self.stats["loop edges in place"] += 1
+            self.view.event(f"scan {len(self.map)}: loop edge from milestone {edge.i} to "
+                            f"{edge.j} (no handover)")
+            e = self.graph.error(self.milestones.poses, edge)
+            if float(e @ edge.information @ e) > self.config.loop_chi2:
+                self._adjust()
+            return
 
     def _adjust(self) -> None:
         """Adjust the milestone graph; the robot moves with its anchor."""

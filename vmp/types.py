@@ -115,6 +115,9 @@ class ScanFrame:
     odom: FloatArray | None = None
     true_pose: FloatArray | None = None
     index: int = field(default=-1)
+    # How far a beam without a return proves free space: None as far as the mapper allows;
+    # 0 not at all, for a sensor whose no-return reading also means "could not measure".
+    no_return_free: float | None = None
 
     def __post_init__(self) -> None:
         r = _readonly(self.ranges)
@@ -127,6 +130,8 @@ class ScanFrame:
         finite = np.isfinite(r)
         if (r[finite] > self.max_range).any():
             raise ValueError(f"finite ranges must not exceed max_range={self.max_range}")
+        if self.no_return_free is not None and not self.no_return_free >= 0:
+            raise ValueError(f"no_return_free must be >= 0, got {self.no_return_free}")
         if not (np.isfinite(self.max_range) and self.max_range > 0):
             raise ValueError(f"max_range must be positive and finite, got {self.max_range}")
         if not (np.isfinite(self.angle_increment) and self.angle_increment != 0):
@@ -166,8 +171,11 @@ class ScanFrame:
         return np.isfinite(self.ranges)
 
     def free_ranges(self) -> FloatArray:
-        """Extent of free space along each beam: the range, or ``max_range`` without a return."""
-        return np.where(self.returned, self.ranges, self.max_range)
+        """Extent of free space along each beam: the range, or without a return
+        ``max_range`` (capped by ``no_return_free``)."""
+        reach = self.max_range if self.no_return_free is None else min(self.max_range,
+                                                                         self.no_return_free)
+        return np.where(self.returned, self.ranges, reach)
 
     def points(self) -> FloatArray:
         """End points ``(K, 2)`` of the returned beams, in the scanner frame."""

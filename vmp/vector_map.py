@@ -101,15 +101,22 @@ class VectorMap:
         self.segment_end.append(None)
         return len(self.segment_anchor) - 1
 
-    def insert(self, ranges: FloatArray, rel_pose: FloatArray, stamp: float = 0.0) -> int:
-        """Add a scan (ranges with ``inf`` for no return) at ``rel_pose`` in the open segment."""
+    def insert(self, ranges: FloatArray, rel_pose: FloatArray, stamp: float = 0.0,
+               free_range: float | None = None) -> int:
+        """Add a scan (ranges with ``inf`` for no return) at ``rel_pose`` in the open segment.
+
+        ``free_range`` caps this scan's free space along beams without a return (0: none).
+        """
         if not self.segment_anchor:
             raise ValueError("open a segment before inserting scans")
         r = np.asarray(ranges, dtype=np.float64)
         if r.shape != (self.geometry.num_beams,):
             raise ValueError(f"expected {self.geometry.num_beams} ranges, got {r.shape}")
         hit = np.isfinite(r)
-        free = np.where(hit, r, self.free_range)
+        reach = self.free_range if free_range is None else min(self.free_range, free_range)
+        # Vertices piled up on the scanner would make the polygon touch itself: "no free
+        # space" keeps a 2 cm fan around the scanner instead.
+        free = np.where(hit, r, max(reach, 0.02))
         pts = np.stack([free * self._cos, free * self._sin], axis=-1)
         self._points.append(pts)
         self._hits.append(np.packbits(hit))
