@@ -93,6 +93,9 @@ class PipelineConfig:
     min_points: int = 20  # fewer returns than this: the scan is not matched
     no_return_free_range: float = 10.0  # how far a beam without a return marks free space (m)
     initial_sigma: tuple[float, float, float] = (0.01, 0.01, math.radians(0.5))
+    # After a handover the robot's pose in the new anchor's frame keeps the gate's spread where
+    # the registration does not see (helps the warehouse with a submap; costs the office: open).
+    handover_covariance: bool = False
 
 
 @dataclass(frozen=True)
@@ -143,6 +146,10 @@ class Pipeline:
         self._anchor_reg: Registration | None = None  # this scan's accepted anchor match
         self._abs_cov: list[FloatArray] = []  # per milestone: covariance in the map frame
         self._q_since = np.zeros((3, 3))  # motion noise since the last anchor correction
+        # How well the robot's pose in its anchor's frame was known when the segment began:
+        # nothing to doubt at a milestone just recorded, but a handover to a stored one sees
+        # only what its registration sees (not the position along a rack aisle).
+        self._handover_cov = np.zeros((3, 3))
         self.scan_odometry = ScanOdometry(self.config.scan_odometry, self.config.registration,
                                           self.config.motion)
         self._started = time.perf_counter()
@@ -398,6 +405,7 @@ class Pipeline:
 
     def _start_segment(self, anchor: int, handover: FloatArray | None) -> None:
         self.anchor = anchor
+        self._handover_cov = np.zeros((3, 3))
         segment = self.map.new_segment(anchor, handover)
         self._last_corrected = len(self.map) - 1
         self.view.segment(len(self.map), self._stamp, segment, anchor,
@@ -410,7 +418,7 @@ class Pipeline:
         distance); this scan's registration against the anchor narrows it where it sees.
         """
         rel = relative(self.milestones.pose(self.anchor), self.filter.pose)
-        cov = motion_covariance(rel, self.config.motion)
+        cov = motion_covariance(rel, self.config.motion) + self._handover_cov
         if self._anchor_reg is not None:
             return rel, fuse(rel, self._anchor_reg.covariance, rel, cov)[1]
         return rel, cov
@@ -476,6 +484,10 @@ class Pipeline:
         # Re-localise on the milestone we hand over to (degenerate directions of its
         # registration carry a huge covariance, so the filter keeps its own estimate there).
         before = self.filter.pose.copy()
+        # The robot in the new anchor's frame: the registration where it sees, elsewhere what
+        # the filter and both chains of milestones knew (the spread of the handover's gate).
+        prior = self.filter.covariance + self._robot_cov_via_anchor() + self._abs_cov[m.milestone]
+        in_map = fuse(m.z, m.R, m.z, prior)[1]
         self.filter.update(m.z, m.R)
         self.corrections.append((len(self.map), "handover", before, self.filter.pose.copy()))
         self._pending = None  # the scan goes into the new segment where the filter now is
@@ -485,6 +497,11 @@ class Pipeline:
         edge = self.graph.add(self.anchor, m.milestone, z, cov, "path" if sequential else "loop")
         self.stats["anchor switches"] += 1
         self._start_segment(m.milestone, handover=handover)
+        th = self.milestones.pose(m.milestone)[2]
+        rot = np.array([[math.cos(th), -math.sin(th), 0.0], [math.sin(th), math.cos(th), 0.0],
+                        [0.0, 0.0, 1.0]])
+        if self.config.handover_covariance:
+            self._handover_cov = rot.T @ in_map @ rot
         self.view.event(f"scan {len(self.map)}: handed over from milestone {edge.i} to "
                         f"{edge.j} ({edge.kind} edge)")
         if edge.kind == "loop":

@@ -10,7 +10,7 @@ wins, where it is not (along a featureless corridor) the wheels do. This goes be
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -37,6 +37,14 @@ class ScanOdometryConfig:
     calibrate: bool = True
     calibration_sigma: float = 0.008  # registration sigma along travel needed to learn (m)
     calibration_memory: float = 50.0  # metres of travel the scale estimate averages over
+    # The reference a scan registers against: the latest keyframe and the ones before it, all
+    # in the latest's frame. One sparse scan rarely samples a rack upright's side or a pallet's
+    # end well enough to see motion along an aisle; a few keyframes together do.
+    submap_keyframes: int = 1  # 6 halves the warehouse ATE but breaks the corridor (open)
+    # Registration here is checked against the wheels (``gate``) and fused with them by
+    # information, so it may keep a weaker constraint than a milestone match (the rack uprights
+    # seen along a one-sided aisle): the registration's ``min_constraint`` for scan odometry.
+    min_constraint: float | None = None  # 4.0 helps the warehouse, costs the office
 
 
 def motion_covariance(u: FloatArray, noise: MotionNoise) -> FloatArray:
@@ -52,9 +60,13 @@ class ScanOdometry:
 
     def __init__(self, config: ScanOdometryConfig, registration: RegistrationConfig,
                  noise: MotionNoise) -> None:
+        if config.min_constraint is not None:
+            registration = replace(registration, min_constraint=config.min_constraint)
         self.config, self.registration, self.noise = config, registration, noise
         self._key: Reference | None = None
         self._rel = np.zeros(3)  # the last scan's pose in the keyframe's frame
+        self._pose = np.zeros(3)  # the last scan's pose, integrated from the increments
+        self._keys: list[tuple[FloatArray, FloatArray]] = []  # recent keyframes: pose, points
         self.refined = 0
         self.fallbacks = 0
         self._dist_wheel = 0.0  # travel behind the scale estimate, wheels and registration
@@ -106,6 +118,7 @@ class ScanOdometry:
             q = np.linalg.inv(info_w + info_r)
             u = wheel + q @ (info_r @ d)
         self._rel = compose(self._rel, u)
+        self._pose = compose(self._pose, u)
         if (np.hypot(self._rel[0], self._rel[1]) >= c.keyframe_distance
                 or abs(self._rel[2]) >= c.keyframe_turn):
             self._new_key(points)
@@ -125,8 +138,17 @@ class ScanOdometry:
         self._dist_reg = self._dist_reg * forget + float(along @ u_reg[:2])
 
     def _new_key(self, points: FloatArray) -> None:
+        keys = [*self._keys[-(self.config.submap_keyframes - 1):], (self._pose.copy(), points)] \
+            if self.config.submap_keyframes > 1 else [(self._pose.copy(), points)]
+        parts = []
+        for pose, pts in keys:
+            rel = relative(self._pose, pose)
+            c, s = math.cos(rel[2]), math.sin(rel[2])
+            parts.append(np.stack([rel[0] + c * pts[:, 0] - s * pts[:, 1],
+                                   rel[1] + s * pts[:, 0] + c * pts[:, 1]], axis=-1))
         try:
-            self._key = Reference(points, self.registration)
+            self._key = Reference(np.concatenate(parts), self.registration)
             self._rel = np.zeros(3)
+            self._keys = keys
         except ValueError:
             pass
