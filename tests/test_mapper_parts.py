@@ -205,3 +205,33 @@ def test_marginals_equal_the_dense_inverse_blocks():
     idx = np.arange(n - 1)[:, None] * 3 + np.arange(3)
     np.testing.assert_allclose(got[1:], cov[idx[:, :, None], idx[:, None, :]], atol=1e-10)
     assert np.all(got[0] == 0)
+
+
+def test_scan_odometry_submap_holds_recent_keyframes_in_the_latest_frame():
+    from vmp.fusion import MotionNoise
+    from vmp.registration import RegistrationConfig
+    from vmp.scan_odometry import ScanOdometry, ScanOdometryConfig
+
+    # a room: walls 3 m around; the robot drives 0.1 m a step along x
+    angles = np.linspace(-math.pi, math.pi, 360, endpoint=False)
+    walls = [(0, 3.0), (math.pi / 2, 3.0), (math.pi, 3.0), (-math.pi / 2, 3.0)]
+
+    def scan_at(x: float) -> np.ndarray:
+        r = np.full(angles.size, np.inf)
+        for normal, d in walls:  # distance to each wall along each beam
+            dist = d - x * math.cos(normal)
+            cos = np.cos(angles - normal)
+            with np.errstate(divide="ignore"):
+                t = np.where(cos > 1e-6, dist / cos, np.inf)
+            r = np.minimum(r, t)
+        return np.stack([r * np.cos(angles), r * np.sin(angles)], axis=-1)
+
+    odo = ScanOdometry(ScanOdometryConfig(submap_keyframes=3, keyframe_distance=0.25),
+                       RegistrationConfig(), MotionNoise())
+    odo.increment(scan_at(0.0), None)
+    for k in range(1, 12):
+        u, _ = odo.increment(scan_at(0.1 * k), np.array([0.1, 0.0, 0.0]))
+        np.testing.assert_allclose(u, [0.1, 0.0, 0.0], atol=2e-3)
+    assert len(odo._keys) == 3  # the submap holds the last three keyframes
+    newest = odo._keys[-1][0]
+    assert all(relative(newest, pose)[0] < 0 for pose, _ in odo._keys[:-1])  # behind it

@@ -16,7 +16,7 @@ import numpy as np
 
 from vmp.fusion import MotionNoise
 from vmp.registration import Reference, RegistrationConfig, register
-from vmp.types import FloatArray, compose, relative
+from vmp.types import FloatArray, compose, relative, transform_points
 
 __all__ = ["ScanOdometry", "ScanOdometryConfig"]
 
@@ -140,12 +140,7 @@ class ScanOdometry:
     def _new_key(self, points: FloatArray) -> None:
         keys = [*self._keys[-(self.config.submap_keyframes - 1):], (self._pose.copy(), points)] \
             if self.config.submap_keyframes > 1 else [(self._pose.copy(), points)]
-        parts = []
-        for pose, pts in keys:
-            rel = relative(self._pose, pose)
-            c, s = math.cos(rel[2]), math.sin(rel[2])
-            parts.append(np.stack([rel[0] + c * pts[:, 0] - s * pts[:, 1],
-                                   rel[1] + s * pts[:, 0] + c * pts[:, 1]], axis=-1))
+        parts = [transform_points(relative(self._pose, pose), pts) for pose, pts in keys]
         try:
             self._key = Reference(np.concatenate(parts), self.registration)
             self._rel = np.zeros(3)
