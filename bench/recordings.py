@@ -25,7 +25,8 @@ from report import machine, write_section
 from drivers.formats import open_recording
 from vmp.evaluate import ate, read_relations, relation_error, relation_errors
 from vmp.export import occupancy_grid, write_png
-from vmp.pipeline import Pipeline
+from vmp.pipeline import Pipeline, PipelineConfig
+from vmp.scan_odometry import ScanOdometryConfig
 from vmp.vector_map import BeamGeometry
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
@@ -41,13 +42,13 @@ OTHERS = [
                "orebro", "belgioioso", "fhw", "edmonton", "acapulco")]
 
 
-def run(path: Path):
+def run(path: Path, config: PipelineConfig | None = None):
     log = open_recording(path)
     frames = iter(log)
     first = next(frames)
     geom = BeamGeometry(first.num_beams, first.angle_min, first.angle_increment,
                         first.max_range)
-    p = Pipeline(geom)
+    p = Pipeline(geom, config)
     stamps = []
     t = time.perf_counter()
     p.step(first)
@@ -116,6 +117,11 @@ def main() -> None:
               f"{duration:.0f} s of data ({duration / wall:.0f}x real time); "
               f"{len(p.milestones)} milestones, {acc} matches accepted, {rej} rejected")
         save_map(p, traj, "intel_part")
+        wheels = PipelineConfig(scan_odometry=ScanOdometryConfig(enabled=False))
+        _, stamps_w, traj_w, wall_w, _ = run(DATA / "intel" / "intel-first5505.clf.gz", wheels)
+        e_w = relation_error(stamps_w, traj_w, read_relations(DATA / "intel" / "intel.relations"))
+        print(f"intel without scan odometry: {e_w.trans_mean:.3f} +- {e_w.trans_std:.3f} m, "
+              f"{math.degrees(e_w.rot_mean):.2f} deg; {wall_w:.1f} s")
         lines += [
             "Intel Research Lab, first 5,505 scans (1,089 s), Kuemmerle relations inside it:",
             "",
@@ -124,6 +130,10 @@ def main() -> None:
             f"| **vmp-slam** | {e.trans_mean:.3f} +- {e.trans_std:.3f} | "
             f"{math.degrees(e.rot_mean):.2f} +- {math.degrees(e.rot_std):.2f} | {wall:.1f} s "
             f"({duration / wall:.0f}x real time) |",
+            f"| vmp-slam without scan odometry (`--no-scan-odometry`: the filter predicts "
+            f"from the wheels alone) | {e_w.trans_mean:.3f} +- {e_w.trans_std:.3f} | "
+            f"{math.degrees(e_w.rot_mean):.2f} +- {math.degrees(e_w.rot_std):.2f} | "
+            f"{wall_w:.1f} s |",
             "| KISS-ICP 1.3.0, odometry only, best of 7 voxel sizes (this machine) | 0.166 | "
             "2.36 | 1.5 s |",
             "| BreezySLAM, best setting (this machine) | 0.50 | 3.6 | about 7 s |",
