@@ -261,7 +261,8 @@ class CarmenLog(LineLog):
         """
         corrected = frame.odom
         assert corrected is not None
-        self.reference.append((frame.stamp, corrected.copy()))  # dropped if not GMapping's
+        if self.gmapping or not self.reference:  # the first in case NEFF lines follow
+            self.reference.append((frame.stamp, corrected.copy()))
         if not self.gmapping or prev is None or not odom_p:
             return frame, (corrected, corrected)
         if self._odom_lines <= 1:

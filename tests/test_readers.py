@@ -198,3 +198,31 @@ def test_rawlaser_scans_take_odometry_interpolated_from_odom_lines(tmp_path):
     np.testing.assert_allclose(frames[1].odom[:2], [0.75, 1.5])
     np.testing.assert_allclose(frames[2].odom, [1, 2, -3.0])  # after the last ODOM: it holds
     assert [f.index for f in frames] == [0, 1, 2]
+
+
+def test_reading_a_long_log_does_not_hold_it_in_memory(tmp_path):
+    """Peak memory while iterating a log does not grow with its length (lines are streamed)."""
+    import gzip
+    import tracemalloc
+
+    from drivers.carmen import CarmenLog
+
+    def write(n: int) -> Path:
+        path = tmp_path / f"log{n}.clf.gz"
+        with gzip.open(path, "wt") as f:
+            for k in range(n):
+                f.write(_odom((0.01 * k, 0, 0), 0.1 * k) + _flaser((0.01 * k, 0, 0), 0.1 * k))
+        return path
+
+    def peak(path: Path) -> tuple[int, int]:
+        tracemalloc.start()
+        count = sum(1 for _ in CarmenLog(path))
+        top = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return count, top
+
+    short, long_ = write(200), write(4000)
+    n_short, m_short = peak(short)
+    n_long, m_long = peak(long_)
+    assert (n_short, n_long) == (200, 4000)
+    assert m_long < 1.5 * m_short + 200_000  # 20 times the scans, about the same memory
