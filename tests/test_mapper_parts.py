@@ -207,31 +207,59 @@ def test_marginals_equal_the_dense_inverse_blocks():
     assert np.all(got[0] == 0)
 
 
+def _room_scan(x: float) -> np.ndarray:
+    """End points seen from (x, 0, 0) in a square room with walls 3 m from the origin."""
+    angles = np.linspace(-math.pi, math.pi, 360, endpoint=False)
+    r = np.full(angles.size, np.inf)
+    for normal in (0.0, math.pi / 2, math.pi, -math.pi / 2):
+        dist = 3.0 - x * math.cos(normal)
+        cos = np.cos(angles - normal)
+        with np.errstate(divide="ignore"):
+            r = np.minimum(r, np.where(cos > 1e-6, dist / cos, np.inf))
+    return np.stack([r * np.cos(angles), r * np.sin(angles)], axis=-1)
+
+
 def test_scan_odometry_submap_holds_recent_keyframes_in_the_latest_frame():
     from vmp.fusion import MotionNoise
     from vmp.registration import RegistrationConfig
     from vmp.scan_odometry import ScanOdometry, ScanOdometryConfig
 
-    # a room: walls 3 m around; the robot drives 0.1 m a step along x
-    angles = np.linspace(-math.pi, math.pi, 360, endpoint=False)
-    walls = [(0, 3.0), (math.pi / 2, 3.0), (math.pi, 3.0), (-math.pi / 2, 3.0)]
-
-    def scan_at(x: float) -> np.ndarray:
-        r = np.full(angles.size, np.inf)
-        for normal, d in walls:  # distance to each wall along each beam
-            dist = d - x * math.cos(normal)
-            cos = np.cos(angles - normal)
-            with np.errstate(divide="ignore"):
-                t = np.where(cos > 1e-6, dist / cos, np.inf)
-            r = np.minimum(r, t)
-        return np.stack([r * np.cos(angles), r * np.sin(angles)], axis=-1)
-
     odo = ScanOdometry(ScanOdometryConfig(submap_keyframes=3, keyframe_distance=0.25),
                        RegistrationConfig(), MotionNoise())
-    odo.increment(scan_at(0.0), None)
-    for k in range(1, 12):
-        u, _ = odo.increment(scan_at(0.1 * k), np.array([0.1, 0.0, 0.0]))
+    odo.increment(_room_scan(0.0), None)
+    for k in range(1, 12):  # the robot drives 0.1 m a step along x
+        u, _ = odo.increment(_room_scan(0.1 * k), np.array([0.1, 0.0, 0.0]))
         np.testing.assert_allclose(u, [0.1, 0.0, 0.0], atol=2e-3)
     assert len(odo._keys) == 3  # the submap holds the last three keyframes
     newest = odo._keys[-1][0]
     assert all(relative(newest, pose)[0] < 0 for pose, _ in odo._keys[:-1])  # behind it
+
+
+def test_turning_on_the_spot_may_carry_translation_noise():
+    from vmp.fusion import MotionNoise, motion_covariance
+
+    turn = np.array([0.0, 0.0, math.pi / 2])
+    plain = motion_covariance(turn, MotionNoise())
+    keyframes = motion_covariance(turn, MotionNoise(trans_per_rad=0.02))
+    assert plain[0, 0] == pytest.approx(MotionNoise().floor_xy ** 2)
+    assert keyframes[0, 0] == pytest.approx(0.02**2 * math.pi / 2 + MotionNoise().floor_xy**2)
+
+
+def test_wheel_noise_adapts_when_the_wheels_disagree_with_good_registrations():
+    from vmp.fusion import MotionNoise
+    from vmp.registration import RegistrationConfig
+    from vmp.scan_odometry import ScanOdometry, ScanOdometryConfig
+
+    rng = np.random.default_rng(4)
+    odo = {on: ScanOdometry(ScanOdometryConfig(adapt_noise=on, calibrate=False),
+                            RegistrationConfig(), MotionNoise()) for on in (False, True)}
+    for o in odo.values():
+        o.increment(_room_scan(0.0), None)
+    x = 0.0
+    for _ in range(40):  # the wheels err by several cm a step, far beyond the model
+        x += 0.02
+        wheel = np.array([0.02 + rng.normal(0, 0.04), rng.normal(0, 0.04), 0.0])
+        for o in odo.values():
+            o.increment(_room_scan(x), wheel)
+    assert odo[False].noise_scale.tolist() == [1.0, 1.0]
+    assert odo[True].noise_scale[0] > 5.0  # the xy variance was scaled up from the data
