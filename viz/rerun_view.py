@@ -125,7 +125,7 @@ class RerunView:
 
     def segment(self, index: int, stamp: float, segment: int, anchor_id: int,
                 anchor_pose: np.ndarray) -> None:
-        self.flush()
+        # scans of each segment are an entity of their own: no need to flush here
         self._now = (index, stamp)
         self._at(index, stamp)
         while len(self._segment_anchor) <= segment:
