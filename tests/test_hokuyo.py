@@ -400,7 +400,7 @@ def test_reconnects_after_the_device_falls_silent_and_comes_back_power_cycled():
         session.wait(lambda: len(session.frames) >= 10, 20.0, "the first scans")
         dev.go_silent()
         session.wait(lambda: drv.stats.timeouts >= 1, 10.0, "the silence to be noticed")
-        time.sleep(0.3)
+        session.wait(lambda: drv.stats.failed_connects >= 1, 10.0, "an attempt while it is off")
         before, md_before = len(session.frames), dev.commands.count(b"MD0044072501000")
         dev.power_on()  # boots with the laser off and nothing streaming
         session.wait(lambda: len(session.frames) >= before + 10, 20.0, "scans after power-on")

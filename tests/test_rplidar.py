@@ -352,7 +352,7 @@ def test_reconnects_after_silence_and_boot_banner():
         s.wait(lambda: len(s.frames) >= 10, 20.0, "first scans")
         dev.go_silent()
         s.wait(lambda: drv.stats.timeouts >= 1, 10.0, "the silence to be noticed")
-        time.sleep(0.3)  # reconnect attempts against a dead device
+        s.wait(lambda: drv.stats.failed_connects >= 1, 10.0, "an attempt while it is off")
         before = len(s.frames)
         dev.power_on()
         s.wait(lambda: len(s.frames) >= before + 10, 20.0, "scans after power-on")
