@@ -24,6 +24,9 @@ examples:
   vmp simulate warehouse --out runs/w.clf --laps 3 --seed 11
   vmp simulate my_building.yaml --out b.clf
   vmp scenarios                           list the built-in scenarios
+  vmp info demo.bag                       what a recording holds (topics of a ROS bag)
+  vmp live --driver sick --simulate office   live mapping from a simulated LMS 200
+  vmp live --driver rplidar --port /dev/ttyUSB0
 
 Angles on the command line and in scenario files are in degrees, everything else in SI units.
 """
