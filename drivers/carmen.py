@@ -37,7 +37,7 @@ import numpy as np
 from drivers.textlog import LineLog
 from vmp import __version__
 from vmp.fileio import atomic_write
-from vmp.types import ScanFrame, compose, relative, wrap_angle
+from vmp.types import ScanFrame, compose, interpolate_pose, relative, wrap_angle
 
 __all__ = ["CarmenLog", "CarmenWriter", "parse_laser_line", "read_carmen", "write_carmen"]
 
@@ -216,7 +216,7 @@ class CarmenLog(LineLog):
                 while pending and pending[0][1].stamp <= odom_t[-1]:
                     lno, f = pending.pop(0)
                     self._line = lno
-                    yield _with_odom(f, _interpolate(odom_t, odom_p, f.stamp))
+                    yield _with_odom(f, interpolate_pose(odom_t, odom_p, f.stamp))
                 continue
             if kind not in _LASER_WORDS:
                 continue
@@ -242,7 +242,7 @@ class CarmenLog(LineLog):
             yield frame
         for lno, f in pending:  # after the last ODOM line: the last pose holds
             self._line = lno
-            yield _with_odom(f, _interpolate(odom_t, odom_p, f.stamp) if odom_t else None)
+            yield _with_odom(f, interpolate_pose(odom_t, odom_p, f.stamp))
         if not self.gmapping:
             self.reference = []
 
@@ -281,16 +281,6 @@ def _odom_line(parts: list[str]) -> tuple[float, np.ndarray] | None:
     if len(pose) != 3 or not (np.isfinite(pose).all() and math.isfinite(stamp)):
         return None
     return stamp, pose
-
-
-def _interpolate(stamps: list[float], poses: list[np.ndarray], t: float) -> np.ndarray:
-    if len(stamps) == 1 or t >= stamps[-1] or stamps[-1] <= stamps[0]:
-        return poses[-1].copy() if t >= stamps[-1] else poses[0].copy()
-    f = min(max((t - stamps[0]) / (stamps[-1] - stamps[0]), 0.0), 1.0)
-    a, b = poses[0], poses[-1]
-    out = a + f * (b - a)
-    out[2] = float(wrap_angle(a[2] + f * float(wrap_angle(b[2] - a[2]))))
-    return out
 
 
 def _with_odom(frame: ScanFrame, odom: np.ndarray | None) -> ScanFrame:

@@ -9,7 +9,6 @@ number. Scans take the pose interpolated at their arrival time.
 
 from __future__ import annotations
 
-import bisect
 import json
 import math
 import os
@@ -23,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import serial
 
-from vmp.types import FloatArray, wrap_angle
+from vmp.types import FloatArray, interpolate_pose
 
 __all__ = ["PoseFeed", "parse_pose_line"]
 
@@ -129,21 +128,9 @@ class PoseFeed:
         None before the first pose arrived.
         """
         with self._lock:
-            if not self._stamps:
-                return None
-            stamps = list(self._stamps)
-            poses = list(self._poses)
-        i = bisect.bisect_right(stamps, stamp)
-        if i == 0:
-            return poses[0].copy()
-        if i == len(stamps):
-            return poses[-1].copy()
-        t0, t1 = stamps[i - 1], stamps[i]
-        a, b = poses[i - 1], poses[i]
-        f = 0.0 if t1 <= t0 else (stamp - t0) / (t1 - t0)
-        out = a + f * (b - a)
-        out[2] = float(wrap_angle(a[2] + f * float(wrap_angle(b[2] - a[2]))))
-        return out
+            stamps = np.fromiter(self._stamps, dtype=np.float64, count=len(self._stamps))
+            poses = np.array(self._poses).reshape(-1, 3)
+        return interpolate_pose(stamps, poses, stamp)
 
     def summary(self) -> str:
         first = "; ".join(f"line {n}: {w}" for n, w in self.problems[:3])

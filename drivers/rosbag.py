@@ -33,7 +33,7 @@ import numpy as np
 
 from drivers.textlog import LineLog
 from vmp.errors import InputError
-from vmp.types import FloatArray, ScanFrame, wrap_angle
+from vmp.types import FloatArray, ScanFrame, interpolate_pose
 
 __all__ = ["RosBagLog", "bag_topics", "is_ros2_bag"]
 
@@ -219,23 +219,6 @@ def _stamp(header, t_ns: int) -> float:
     return s if s > 0 else t_ns * 1e-9
 
 
-def interpolate_poses(stamps: FloatArray, poses: FloatArray, at: float) -> FloatArray | None:
-    """The pose at ``at`` between the stamped poses around it (the nearest outside them)."""
-    if len(stamps) == 0:
-        return None
-    i = int(np.searchsorted(stamps, at))
-    if i == 0:
-        return poses[0].copy()
-    if i == len(stamps):
-        return poses[-1].copy()
-    t0, t1 = stamps[i - 1], stamps[i]
-    f = 0.0 if t1 <= t0 else (at - t0) / (t1 - t0)
-    a, b = poses[i - 1], poses[i]
-    out = a + f * (b - a)
-    out[2] = float(wrap_angle(a[2] + f * float(wrap_angle(b[2] - a[2]))))
-    return out
-
-
 class RosBagLog(LineLog):
     """Scan frames from a ROS 1 or ROS 2 bag or an MCAP file (topics chosen or detected)."""
 
@@ -311,7 +294,7 @@ class RosBagLog(LineLog):
                                   angle_min=float(m.angle_min),
                                   angle_increment=float(m.angle_increment),
                                   max_range=float(m.range_max),
-                                  odom=interpolate_poses(odom_t, odom_p, stamp),
+                                  odom=interpolate_pose(odom_t, odom_p, stamp),
                                   index=self.scans)
             except (ValueError, AttributeError) as exc:
                 self._bad(k, f"bad LaserScan message: {exc}")

@@ -123,3 +123,15 @@ def test_scan_frame_is_immutable_and_checks_poses():
         f.ranges[0] = 3.0
     with pytest.raises(ValueError, match="odom"):
         frame([1.0], odom=[0, np.nan, 0])
+
+
+def test_interpolate_pose_between_around_and_outside():
+    from vmp.types import interpolate_pose
+
+    stamps = [0.0, 2.0]
+    poses = [[0.0, 0.0, 3.0], [2.0, 4.0, -3.0]]
+    mid = interpolate_pose(stamps, poses, 1.0)
+    assert mid[:2].tolist() == [1.0, 2.0] and abs(abs(mid[2]) - np.pi) < 1e-9  # through pi
+    assert interpolate_pose(stamps, poses, -1.0).tolist() == poses[0]
+    assert interpolate_pose(stamps, poses, 5.0).tolist() == poses[1]
+    assert interpolate_pose([], np.zeros((0, 3)), 1.0) is None

@@ -17,6 +17,7 @@ FloatArray = NDArray[np.float64]
 __all__ = [
     "ScanFrame",
     "compose",
+    "interpolate_pose",
     "inverse",
     "relative",
     "rotation_matrix",
@@ -86,6 +87,26 @@ def transform_points(pose: ArrayLike, points: ArrayLike) -> FloatArray:
     y = p[..., 1, None] + s * pts[..., 0] + c * pts[..., 1]
     return np.stack([x, y], axis=-1)
 
+
+
+def interpolate_pose(stamps: ArrayLike, poses: ArrayLike, t: float) -> FloatArray | None:
+    """The pose at time ``t`` from poses ``(N, 3)`` at sorted ``stamps``: linear between the
+    two around it (heading the short way round), the nearest outside them, None without any."""
+    st = np.asarray(stamps, dtype=np.float64)
+    ps = np.asarray(poses, dtype=np.float64)
+    if st.size == 0:
+        return None
+    i = int(np.searchsorted(st, t))
+    if i == 0:
+        return ps[0].copy()
+    if i == st.size:
+        return ps[-1].copy()
+    t0, t1 = st[i - 1], st[i]
+    f = 0.0 if t1 <= t0 else (t - t0) / (t1 - t0)
+    a, b = ps[i - 1], ps[i]
+    out = a + f * (b - a)
+    out[2] = float(wrap_angle(a[2] + f * float(wrap_angle(b[2] - a[2]))))
+    return out
 
 def _readonly(a: ArrayLike, dtype: type = np.float64) -> FloatArray:
     out = np.array(a, dtype=dtype, copy=True)
