@@ -331,30 +331,19 @@ def _parse_laser(kind: str, parts: list[str], params: dict[str, str], index: int
         inc = fov / (n - 1) if n > 1 else fov
         angle_min = -fov / 2.0
         max_range = float(params.get("robot_front_laser_max", "81.83"))
-    elif kind.startswith("RAWLASER"):
+    else:  # ROBOTLASER1 and RAWLASER: same head; only ROBOTLASER1 carries poses after it
         angle_min, _fov, inc, max_range = (float(v) for v in parts[2:6])
         n = int(parts[8])
         ranges = np.array(parts[9:9 + n], dtype=np.float64)
         n_rem = int(parts[9 + n])
         tail = parts[10 + n + n_rem:]
-        if len(ranges) != n or len(tail) != 3:
+        raw = kind.startswith("RAWLASER")
+        if len(ranges) != n or len(tail) != (3 if raw else 14):
             raise ValueError(f"declares {n} ranges and {n_rem} remissions but the field "
                              "count does not match")
-        poses = np.zeros(3)
-        odom = None
-        stamp = float(tail[0])
-    else:
-        angle_min, _fov, inc, max_range = (float(v) for v in parts[2:6])
-        n = int(parts[8])
-        ranges = np.array(parts[9:9 + n], dtype=np.float64)
-        n_rem = int(parts[9 + n])
-        tail = parts[10 + n + n_rem:]
-        if len(ranges) != n or len(tail) != 14:
-            raise ValueError(f"declares {n} ranges and {n_rem} remissions but the field "
-                             "count does not match")
-        poses = np.array(tail[0:6], dtype=np.float64)
-        odom = poses[0:3]
-        stamp = float(tail[11])
+        poses = np.zeros(3) if raw else np.array(tail[0:6], dtype=np.float64)
+        odom = None if raw else poses[0:3]
+        stamp = float(tail[0 if raw else 11])
     if np.isnan(ranges).any():
         raise ValueError("a range is NaN")
     if (ranges < 0).any():
