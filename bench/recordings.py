@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from report import machine, write_section
 
 from drivers.formats import open_recording
-from vmp.evaluate import ate, read_relations, relation_error, relation_errors
+from vmp.evaluate import ate_in_order, read_relations, relation_error, relation_errors
 from vmp.export import occupancy_grid, write_png
 from vmp.pipeline import Pipeline, PipelineConfig
 from vmp.scan_odometry import ScanOdometryConfig
@@ -155,9 +155,8 @@ def main() -> None:
         ref = getattr(log, "reference", None)
         if ref and len(ref) == len(traj):  # GMapping's poses: pair by order
             poses = np.array([q for _, q in ref])
-            k = np.arange(len(poses), dtype=np.float64)
-            ours = ate(k, traj, k, poses).rmse
-            odo = ate(k, np.array(p.odometry), k, poses).rmse
+            ours = ate_in_order(traj, poses)
+            odo = ate_in_order(np.array(p.odometry), poses)
             unknown = getattr(log, "unknown_increments", 0)
             note = (f"ATE vs GMapping {ours:.2f} m (raw odometry {odo:.2f} m)"
                     + (f"; {unknown} of {len(traj)} odometry increments missing" if unknown

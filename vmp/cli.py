@@ -294,16 +294,7 @@ def cmd_map(args: argparse.Namespace) -> int:
     frames, geom, total, name, log = _open_source(args.source, args.seed, args.scans,
                                                   args.strict, args.format, args.scan_topic,
                                                   args.odom_topic)
-    view, where = None, ""
-    if args.rerun:
-        from viz.rerun_view import open_rerun
-
-        try:
-            view, where = open_rerun(args.rerun)
-        except ValueError as exc:
-            raise InputError(str(exc)) from exc
-        if not args.quiet:
-            print(f"rerun: {where}")
+    view, where = open_view(args.rerun, args.quiet)
     pipeline = Pipeline(geom, config, view)
     progress = Progress(total, f"mapping {name}", enabled=False if args.quiet else None)
     stamps = []
@@ -349,13 +340,28 @@ def cmd_map(args: argparse.Namespace) -> int:
     return 0
 
 
+def open_view(target: str | None, quiet: bool):
+    """The Rerun view asked for with ``--rerun`` (and where it goes), or (None, "")."""
+    if not target:
+        return None, ""
+    from viz.rerun_view import open_rerun
+
+    try:
+        view, where = open_rerun(target)
+    except ValueError as exc:
+        raise InputError(str(exc)) from exc
+    if not quiet:
+        print(f"rerun: {where}")
+    return view, where
+
+
 def _against_reference(log, pipeline, out: Path, stamps: np.ndarray) -> dict:
     """ATE against the poses a recording carries as a reference (GMapping's, in Radish logs).
 
     Scans are paired by order (some of those logs have no usable stamps); the reference is
     written beside the trajectory as ``reference.tum``.
     """
-    from vmp.evaluate import ate
+    from vmp.evaluate import ate_in_order
     from vmp.tum import write_tum
 
     ref = getattr(log, "reference", None)
@@ -363,12 +369,12 @@ def _against_reference(log, pipeline, out: Path, stamps: np.ndarray) -> dict:
         return {}
     poses = np.array([p for _, p in ref])
     write_tum(out / "reference.tum", stamps, poses)
-    order = np.arange(len(poses), dtype=np.float64)
-    extra = {"unknown odometry increments": getattr(log, "unknown_increments", 0)}
-    extra["ATE vs GMapping's poses (m)"] = ate(order, pipeline.trajectory(), order, poses).rmse
-    extra["ATE of odometry vs GMapping's poses (m)"] = ate(
-        order, np.array(pipeline.odometry), order, poses).rmse
-    return extra
+    return {
+        "unknown odometry increments": getattr(log, "unknown_increments", 0),
+        "ATE vs GMapping's poses (m)": ate_in_order(pipeline.trajectory(), poses),
+        "ATE of odometry vs GMapping's poses (m)": ate_in_order(np.array(pipeline.odometry),
+                                                                poses),
+    }
 
 
 def _map_file(result: Path) -> Path:

@@ -65,6 +65,7 @@ def add_live_parser(sub: argparse._SubParsersAction) -> None:
 def cmd_live(args: argparse.Namespace) -> int:
     from drivers.devices.pose_feed_device import PoseFeedDevice
     from drivers.scanners import open_scanner, simulated_scanner
+    from vmp.cli import open_view
     from vmp.config import load_config
     from vmp.live import LiveOptions, run_live
     from vmp.pipeline import PipelineConfig
@@ -109,16 +110,7 @@ def cmd_live(args: argparse.Namespace) -> int:
             driver = open_scanner(args.driver, port, **options)
         except ValueError as exc:
             raise InputError(str(exc)) from exc
-        view = None
-        if args.rerun:
-            from viz.rerun_view import open_rerun
-
-            try:
-                view, where = open_rerun(args.rerun)
-            except ValueError as exc:
-                raise InputError(str(exc)) from exc
-            if not args.quiet:
-                print(f"rerun: {where}")
+        view, _ = open_view(args.rerun, args.quiet)
         name = f"live-{args.driver}" + (f"-{args.simulate}" if args.simulate else "")
         if not args.quiet:
             src = f"simulated {args.driver} on {port}" if args.simulate else port

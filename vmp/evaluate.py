@@ -77,6 +77,13 @@ def ate(est_stamps: FloatArray, est: FloatArray, ref_stamps: FloatArray, ref: Fl
     return ATE(float(np.sqrt(np.mean(d**2))), float(d.mean()), float(d.max()), len(ia))
 
 
+def ate_in_order(est: FloatArray, ref: FloatArray) -> float:
+    """ATE RMSE with the i-th estimated pose paired to the i-th reference pose (for references
+    whose stamps cannot be used, like those of the GMapping-corrected Radish logs)."""
+    order = np.arange(len(ref), dtype=np.float64)
+    return ate(order, est, order, ref).rmse
+
+
 @dataclass(frozen=True)
 class RPE:
     trans_rmse: float  # m per delta

@@ -35,11 +35,19 @@ from vmp.fusion import CHI2_3DOF_99, MotionNoise, PoseFilter, pose_residual
 from vmp.pose_graph import PoseGraph
 from vmp.registration import Reference, Registration, RegistrationConfig, register
 from vmp.scan_odometry import ScanOdometry, ScanOdometryConfig, motion_covariance
-from vmp.types import FloatArray, ScanFrame, compose, inverse, relative
+from vmp.types import FloatArray, ScanFrame, compose, inverse, relative, rotation_matrix
 from vmp.vector_map import BeamGeometry, VectorMap
 from vmp.view import NullView, View
 
 __all__ = ["Match", "Pipeline", "PipelineConfig", "fuse"]
+
+
+def _frame_rotation(theta: float) -> FloatArray:
+    """Rotation ``(3, 3)`` taking a pose covariance from a frame turned by ``theta`` to the
+    outer frame (the heading is unchanged)."""
+    rot = np.eye(3)
+    rot[:2, :2] = rotation_matrix(theta)
+    return rot
 
 
 def fuse(a: FloatArray, cov_a: FloatArray, b: FloatArray, cov_b: FloatArray
@@ -184,9 +192,7 @@ class Pipeline:
                 self._odom_pose = compose(self._odom_offset, odom)
             u, q = self.scan_odometry.increment(frame.points(), wheel)
             self.filter.predict(u, q)
-            th = self.filter.pose[2]
-            G = np.array([[math.cos(th), -math.sin(th), 0.0], [math.sin(th), math.cos(th), 0.0],
-                          [0.0, 0.0, 1.0]])
+            G = _frame_rotation(self.filter.pose[2])
             self._q_since = self._q_since + G @ q @ G.T
         self._last_odom = odom
         self._pending = None
@@ -247,9 +253,7 @@ class Pipeline:
                 if found is not None:
                     reg, seed = found, "search"
         z = compose(ms_pose, reg.pose)
-        rot = np.eye(3)
-        rot[:2, :2] = [[math.cos(ms_pose[2]), -math.sin(ms_pose[2])],
-                       [math.sin(ms_pose[2]), math.cos(ms_pose[2])]]
+        rot = _frame_rotation(ms_pose[2])
         R = rot @ reg.covariance @ rot.T
         if source == "anchor":
             # Only the motion since the last anchor correction may separate prediction and
@@ -486,8 +490,11 @@ class Pipeline:
         before = self.filter.pose.copy()
         # The robot in the new anchor's frame: the registration where it sees, elsewhere what
         # the filter and both chains of milestones knew (the spread of the handover's gate).
-        prior = self.filter.covariance + self._robot_cov_via_anchor() + self._abs_cov[m.milestone]
-        in_map = fuse(m.z, m.R, m.z, prior)[1]
+        in_map = None
+        if self.config.handover_covariance:
+            prior = (self.filter.covariance + self._robot_cov_via_anchor()
+                     + self._abs_cov[m.milestone])
+            in_map = fuse(m.z, m.R, m.z, prior)[1]
         self.filter.update(m.z, m.R)
         self.corrections.append((len(self.map), "handover", before, self.filter.pose.copy()))
         self._pending = None  # the scan goes into the new segment where the filter now is
@@ -497,10 +504,8 @@ class Pipeline:
         edge = self.graph.add(self.anchor, m.milestone, z, cov, "path" if sequential else "loop")
         self.stats["anchor switches"] += 1
         self._start_segment(m.milestone, handover=handover)
-        th = self.milestones.pose(m.milestone)[2]
-        rot = np.array([[math.cos(th), -math.sin(th), 0.0], [math.sin(th), math.cos(th), 0.0],
-                        [0.0, 0.0, 1.0]])
-        if self.config.handover_covariance:
+        if in_map is not None:
+            rot = _frame_rotation(self.milestones.pose(m.milestone)[2])
             self._handover_cov = rot.T @ in_map @ rot
         self.view.event(f"scan {len(self.map)}: handed over from milestone {edge.i} to "
                         f"{edge.j} ({edge.kind} edge)")
