@@ -11,7 +11,9 @@ from hypothesis.extra.numpy import arrays
 from vmp.types import (
     ScanFrame,
     compose,
+    compose_covariance,
     inverse,
+    inverse_covariance,
     relative,
     rotation_matrix,
     transform_points,
@@ -135,3 +137,32 @@ def test_interpolate_pose_between_around_and_outside():
     assert interpolate_pose(stamps, poses, -1.0).tolist() == poses[0]
     assert interpolate_pose(stamps, poses, 5.0).tolist() == poses[1]
     assert interpolate_pose([], np.zeros((0, 3)), 1.0) is None
+
+
+def _sampled_covariance(f, samples):
+    out = np.array([f(x) for x in samples])
+    mean = out.mean(axis=0)
+    d = out - mean
+    d[:, 2] = wrap_angle(d[:, 2])
+    return d.T @ d / (len(out) - 1)
+
+
+def test_compose_and_inverse_covariances_match_sampling():
+    """First-order propagation agrees with the spread of sampled poses (small noise), and a
+    spread along one frame's x turns with the heading: what was a bug in the handover edge."""
+    rng = np.random.default_rng(3)
+    a, b = np.array([2.0, -1.0, 1.1]), np.array([1.5, 0.4, -0.7])
+    cov_a = np.diag([0.02, 0.01, 0.004]) ** 2
+    cov_b = np.array([[3e-4, 1e-4, 0.0], [1e-4, 2e-4, 2e-5], [0.0, 2e-5, 1e-5]])
+    n = 20000
+    sa = a + rng.multivariate_normal(np.zeros(3), cov_a, n)
+    sb = b + rng.multivariate_normal(np.zeros(3), cov_b, n)
+    mc = _sampled_covariance(lambda x: compose(x[0], x[1]), zip(sa, sb, strict=True))
+    np.testing.assert_allclose(compose_covariance(a, cov_a, b, cov_b), mc, rtol=0.08,
+                               atol=2e-6)
+    mc_inv = _sampled_covariance(inverse, sb)
+    np.testing.assert_allclose(inverse_covariance(b, cov_b), mc_inv, rtol=0.08, atol=2e-6)
+    # Doubt along b's own x only, seen from a frame turned by 90 degrees: it lies along y.
+    turned = compose_covariance(np.array([0.0, 0.0, math.pi / 2]), np.zeros((3, 3)),
+                                np.zeros(3), np.diag([1.0, 0.0, 0.0]))
+    np.testing.assert_allclose(turned, np.diag([0.0, 1.0, 0.0]), atol=1e-12)

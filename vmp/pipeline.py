@@ -35,7 +35,16 @@ from vmp.fusion import CHI2_3DOF_99, MotionNoise, PoseFilter, pose_residual
 from vmp.pose_graph import PoseGraph
 from vmp.registration import Reference, Registration, RegistrationConfig, register
 from vmp.scan_odometry import ScanOdometry, ScanOdometryConfig, motion_covariance
-from vmp.types import FloatArray, ScanFrame, compose, inverse, relative, rotation_matrix
+from vmp.types import (
+    FloatArray,
+    ScanFrame,
+    compose,
+    compose_covariance,
+    inverse,
+    inverse_covariance,
+    relative,
+    rotation_matrix,
+)
 from vmp.vector_map import BeamGeometry, VectorMap
 from vmp.view import NullView, View
 
@@ -446,13 +455,16 @@ class Pipeline:
 
     def _compound_cov(self, anchor: int, rel: FloatArray, cov: FloatArray) -> FloatArray:
         """Map-frame covariance of ``anchor (+) rel``, given the edge covariance ``cov``."""
-        a = self.milestones.pose(anchor)
-        c, s = math.cos(a[2]), math.sin(a[2])
-        J1 = np.array([[1.0, 0.0, -s * rel[0] - c * rel[1]],
-                       [0.0, 1.0, c * rel[0] - s * rel[1]],
-                       [0.0, 0.0, 1.0]])
-        J2 = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        return J1 @ self._abs_cov[anchor] @ J1.T + J2 @ cov @ J2.T
+        return compose_covariance(self.milestones.pose(anchor), self._abs_cov[anchor], rel, cov)
+
+    @staticmethod
+    def _via(rel_a: FloatArray, cov_a: FloatArray, reg: Registration
+             ) -> tuple[FloatArray, FloatArray]:
+        """Milestone ``b`` in the anchor's frame through the robot: the robot in the anchor's
+        frame (``rel_a``, ``cov_a``) and in ``b``'s (a registration, in ``b``'s frame)."""
+        to_b = inverse(reg.pose)
+        return compose(rel_a, to_b), compose_covariance(
+            rel_a, cov_a, to_b, inverse_covariance(reg.pose, reg.covariance))
 
     def _robot_cov_via_anchor(self) -> FloatArray:
         """How uncertain the robot is in the map frame through its anchor's chain."""
@@ -483,8 +495,7 @@ class Pipeline:
         placed = relative(anchor_pose, self.filter.pose)  # where this scan would have gone
         rel_a, cov_a = self._robot_in_anchor()
         z, cov = self._milestone_edge(self.anchor, m.milestone,
-                                      (compose(rel_a, inverse(m.registration.pose)),
-                                       cov_a + m.registration.covariance))
+                                      self._via(rel_a, cov_a, m.registration))
         # Re-localise on the milestone we hand over to (degenerate directions of its
         # registration carry a huge covariance, so the filter keeps its own estimate there).
         before = self.filter.pose.copy()
@@ -532,8 +543,7 @@ class Pipeline:
                 continue
             rel_a, cov_a = self._robot_in_anchor()
             z, cov = self._milestone_edge(self.anchor, m.milestone,
-                                          (compose(rel_a, inverse(m.registration.pose)),
-                                           cov_a + m.registration.covariance))
+                                          self._via(rel_a, cov_a, m.registration))
             edge = self.graph.add(self.anchor, m.milestone, z, cov, "loop")
             self._closed.add((self.anchor, m.milestone))
             self.stats["loop edges"] += 1

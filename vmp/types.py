@@ -1,12 +1,14 @@
 """Pose algebra on SE(2) and the scan frame that every source yields.
 
 A pose is ``(x, y, theta)`` in metres and radians with theta wrapped to [-pi, pi).
-Every function takes a single pose of shape ``(3,)`` or a stack of shape ``(..., 3)`` and
-broadcasts like NumPy. This module imports nothing of the project.
+The pose functions take a single pose of shape ``(3,)`` or a stack of shape ``(..., 3)`` and
+broadcast like NumPy; the covariance functions (first-order propagation through compose and
+inverse) take single poses. This module imports nothing of the project.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,8 +19,10 @@ FloatArray = NDArray[np.float64]
 __all__ = [
     "ScanFrame",
     "compose",
+    "compose_covariance",
     "interpolate_pose",
     "inverse",
+    "inverse_covariance",
     "relative",
     "rotation_matrix",
     "transform_points",
@@ -62,6 +66,34 @@ def inverse(a: ArrayLike) -> FloatArray:
     x = -c * a[..., 0] - s * a[..., 1]
     y = s * a[..., 0] - c * a[..., 1]
     return np.stack([x, y, wrap_angle(-a[..., 2])], axis=-1)
+
+
+def compose_covariance(a: ArrayLike, cov_a: ArrayLike, b: ArrayLike, cov_b: ArrayLike
+                       ) -> FloatArray:
+    """Covariance ``(3, 3)`` of ``a (+) b`` for independent poses ``a`` and ``b`` (first order).
+
+    ``cov_b`` is in ``a``'s frame; the result is in the frame ``a`` is given in, so ``b``'s
+    spread turns with ``a``'s heading and ``a``'s heading doubt swings ``b`` about ``a``.
+    """
+    a, b = _as_poses(a), _as_poses(b)
+    c, s = math.cos(a[2]), math.sin(a[2])
+    ja = np.array([[1.0, 0.0, -s * b[0] - c * b[1]],
+                   [0.0, 1.0, c * b[0] - s * b[1]],
+                   [0.0, 0.0, 1.0]])
+    jb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    out = ja @ np.asarray(cov_a, dtype=np.float64) @ ja.T + jb @ np.asarray(
+        cov_b, dtype=np.float64) @ jb.T
+    return 0.5 * (out + out.T)
+
+
+def inverse_covariance(a: ArrayLike, cov_a: ArrayLike) -> FloatArray:
+    """Covariance ``(3, 3)`` of ``inverse(a)`` (in ``a``'s frame) given ``a``'s (first order)."""
+    a = _as_poses(a)
+    c, s = math.cos(a[2]), math.sin(a[2])
+    inv = inverse(a)
+    j = np.array([[-c, -s, inv[1]], [s, -c, -inv[0]], [0.0, 0.0, -1.0]])
+    out = j @ np.asarray(cov_a, dtype=np.float64) @ j.T
+    return 0.5 * (out + out.T)
 
 
 def relative(a: ArrayLike, b: ArrayLike) -> FloatArray:
