@@ -1,16 +1,22 @@
-"""ATE of a scenario over several simulation seeds, with the default or a given configuration.
+"""ATE of scenarios over several simulation seeds, with the default or a given configuration.
 
-Run: python bench/seeds.py warehouse --seeds 5 1 2 [--config bench/configs/warehouse_submap.yaml]
+Run: python bench/seeds.py warehouse corridor office lab [--count 8] [--jobs 2]
+     python bench/seeds.py warehouse --seeds 5 1 2 [--config bench/configs/warehouse_submap.yaml]
 
-Prints the ATE (RMSE after SE(2) alignment, against the simulator's truth) per seed, then the
-median and the maximum. One seed's result can flatter a change; this shows the spread.
+Per scenario it prints the ATE (RMSE after SE(2) alignment, against the simulator's truth) of
+each seed, starting with the scenario's own, then the median and the maximum, and the number
+of wrong corrections (ones that moved the estimate more than 10 cm away from the truth; issue 4
+allows none on the corridor). One seed's result can flatter a change; this shows the spread.
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+
+import numpy as np
 
 from drivers.scenario import load_scenario
 from drivers.simulator import Simulator
@@ -20,28 +26,60 @@ from vmp.pipeline import Pipeline, PipelineConfig
 from vmp.vector_map import BeamGeometry
 
 
+def wrong_corrections(p: Pipeline, truth: np.ndarray, limit: float = 0.10) -> int:
+    """Corrections that moved the estimate more than ``limit`` farther from the truth."""
+    out = 0
+    for k, _kind, before, after in p.corrections:
+        t = truth[min(k, len(truth) - 1)]
+        if np.hypot(*(after[:2] - t[:2])) - np.hypot(*(before[:2] - t[:2])) > limit:
+            out += 1
+    return out
+
+
+def run(job: tuple[str, int, Path | None]) -> tuple[str, int, float, int]:
+    """One scenario and seed: (scenario, seed, ATE in metres, wrong corrections)."""
+    name, seed, config_path = job
+    config = load_config(config_path) if config_path else PipelineConfig()
+    sim = Simulator(load_scenario(name), seed=seed)
+    s = sim.sensor
+    p = Pipeline(BeamGeometry(s.beams, s.angle_min, s.angle_increment, s.max_range), config)
+    for frame in sim:
+        p.step(frame)
+    p.finish()
+    truth = np.asarray(sim.true_poses)
+    e = ate(sim.stamps, p.trajectory(), sim.stamps, truth).rmse
+    return name, seed, e, wrong_corrections(p, truth)
+
+
+def seeds_of(name: str, count: int) -> list[int]:
+    """The scenario's own seed, then 1, 2, ... (without it) up to ``count`` seeds."""
+    own = load_scenario(name).seed
+    return [own] + [s for s in range(1, count + 1) if s != own][: count - 1]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("scenario")
-    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6, 7, 8])
+    ap.add_argument("scenarios", nargs="+")
+    ap.add_argument("--seeds", type=int, nargs="+", help="these seeds for every scenario")
+    ap.add_argument("--count", type=int, default=8, help="seeds per scenario (default 8)")
+    ap.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
     ap.add_argument("--config", type=Path, help="mapping configuration YAML")
     args = ap.parse_args()
-    config = load_config(args.config) if args.config else PipelineConfig()
-    scenario = load_scenario(args.scenario)
-    results = []
-    for seed in args.seeds:
-        sim = Simulator(scenario, seed=seed)
-        s = sim.sensor
-        p = Pipeline(BeamGeometry(s.beams, s.angle_min, s.angle_increment, s.max_range), config)
-        for frame in sim:
-            p.step(frame)
-        p.finish()
-        e = ate(sim.stamps, p.trajectory(), sim.stamps, sim.true_poses).rmse
-        results.append(e)
-        print(f"{args.scenario} seed {seed}: ATE {100 * e:.2f} cm", flush=True)
-    print(f"median {100 * statistics.median(results):.2f} cm, max {100 * max(results):.2f} cm "
-          f"over {len(results)} seeds ({args.config or 'default configuration'})")
+    if args.config:
+        load_config(args.config)  # a bad file fails here, once, with its message
+    jobs = [(name, seed, args.config) for name in args.scenarios
+            for seed in (args.seeds or seeds_of(name, args.count))]
+    with ProcessPoolExecutor(args.jobs) as pool:
+        results = list(pool.map(run, jobs))
+    for name in args.scenarios:
+        mine = [r for r in results if r[0] == name]
+        errors = [e for _, _, e, _ in mine]
+        cells = " ".join(f"{seed}: {100 * e:.1f}" for _, seed, e, _ in mine)
+        print(f"{name} (ATE cm by seed) {cells}")
+        print(f"  median {100 * statistics.median(errors):.2f} cm, max {100 * max(errors):.2f} "
+              f"cm, wrong corrections {sum(w for *_, w in mine)} "
+              f"({args.config or 'default configuration'})")
 
 
 if __name__ == "__main__":

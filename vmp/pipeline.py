@@ -16,7 +16,8 @@
   where it should record a milestone, or comes back to a stored one, the segment closes and the
   next is anchored there; a return adds a loop edge to the milestone graph, whose adjustment
   moves the milestones and with them their segments; a loop to a milestone no nearer than the
-  anchor (the anchor stands at the same place) adds its edge without a handover;
+  anchor (the anchor stands at the same place, recorded there on this visit) adds its edge
+  without a handover;
 * show: the view (a null view when nobody watches) gets what happened.
 """
 
@@ -323,7 +324,10 @@ class Pipeline:
         return reg
 
     def _pins(self, reg: Registration) -> bool:
-        """Whether a registration fixes the pose in every direction (no corridor axis)."""
+        """Whether a registration fixes the pose in every direction (no corridor axis) by
+        lines alone."""
+        if reg.by_corners:
+            return False
         sd = np.sqrt(np.linalg.eigvalsh(reg.covariance[:2, :2]))
         return bool(sd.max() <= self.config.pinned_sigma_xy
                     and math.sqrt(reg.covariance[2, 2]) <= self.config.pinned_sigma_theta)
@@ -532,11 +536,15 @@ class Pipeline:
 
         The anchor may itself stand at the place seen long ago (recorded there on this visit,
         or on an earlier one whose loop was never closed), so no handover comes; a match that
-        pins the pose without the prediction's help then still closes the loop, when the
-        graph disagrees with it (once per pair of milestones).
+        pins the pose then still closes the loop, when the graph disagrees with it (once per
+        pair of milestones). A match registered from the prediction needs a clear place
+        (``retry_max_ratio``), as one registered from the node does: the Intel run passed such
+        places, one after another, without closing a loop whenever the robot came back facing
+        another way and recorded a milestone of its own there.
         """
         for m in matches:
-            if (not m.accepted or m.source != "signature" or m.seed == "prediction"
+            if (not m.accepted or m.source != "signature"
+                    or (m.seed == "prediction" and m.ratio > self.config.retry_max_ratio)
                     or abs(m.milestone - self.anchor) <= self.config.loop_separation
                     or (self.anchor, m.milestone) in self._closed
                     or not self._pins(m.registration)):

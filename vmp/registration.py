@@ -10,7 +10,7 @@ fit leaves the direction along the walls free, and the covariance says so.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -38,6 +38,14 @@ class RegistrationConfig:
     # squared cosines, or fewer than ``min_constraint`` of them.
     degenerate_share: float = 0.05
     min_constraint: float = 8.0
+    # Where point-to-line matching leaves a direction of translation free (a rack aisle, a
+    # corridor), the fit is run again with the reference points among close neighbours that
+    # do not lie on a line (a post, a corner, a pallet's end) matched point to point, with this
+    # weight relative to a line match. Isolated points (a wall sampled sparsely at a grazing
+    # angle) are never matched: their nearest partner slides with the robot. Only then, since
+    # a corner is hit at a slightly different place by every scan: used always, it cost the
+    # Intel run's revisits (0.029 -> 0.064 m). 0 turns corner matching off.
+    corner_weight: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -50,6 +58,9 @@ class Registration:
     covariance: FloatArray  # (3, 3)
     iterations: int
     converged: bool
+    # Whether corner points had to be matched to constrain every direction (less sure than
+    # lines: a loop is not closed on such a fit alone).
+    by_corners: bool = False
 
 
 class Reference:
@@ -83,14 +94,28 @@ class Reference:
         minor = tr / 2 - disc
         major = tr / 2 + disc
         self.valid = (cnt >= 3) & (minor <= 0.1 * np.maximum(major, 1e-12))
+        self.corner = (cnt >= 3) & ~self.valid
 
 
 def register(reference: Reference, points: FloatArray, initial: FloatArray,
              config: RegistrationConfig | None = None) -> Registration:
-    """Point-to-line ICP of ``points`` ``(M, 2)`` (live scanner frame) onto the reference."""
+    """Point-to-line ICP of ``points`` ``(M, 2)`` (live scanner frame) onto the reference;
+    where that leaves a direction free, again with corner points matched point to point."""
     c = config or reference.config
     pts = np.asarray(points, dtype=np.float64)
-    pose = np.asarray(initial, dtype=np.float64).copy()
+    reg, H, wsum = _icp(reference, pts, np.asarray(initial, dtype=np.float64), c, False)
+    if (c.corner_weight > 0 and reference.corner.any() and np.isfinite(reg.rms)
+            and _free_directions(H, wsum, c)):
+        with_corners, _, _ = _icp(reference, pts, reg.pose, c, True)
+        if np.isfinite(with_corners.rms):
+            return replace(with_corners, by_corners=True)
+    return reg
+
+
+def _icp(reference: Reference, pts: FloatArray, initial: FloatArray, c: RegistrationConfig,
+         corners: bool) -> tuple[Registration, FloatArray, float]:
+    """One ICP run from ``initial``; the registration, its last ``H`` and weight sum."""
+    pose = initial.copy()
     gate = c.start_distance
     converged = False
     it = 0
@@ -105,22 +130,41 @@ def register(reference: Reference, points: FloatArray, initial: FloatArray,
         q[:, 0] = pose[0] + cth * px - sth * py
         q[:, 1] = pose[1] + sth * px + cth * py
         dist, idx = reference.tree.query(q, distance_upper_bound=gate)
-        matched = dist < np.inf
-        matched[matched] &= reference.valid[idx[matched]]
-        n_matched = int(matched.sum())
+        found = dist < np.inf
+        line = found.copy()
+        line[found] = reference.valid[idx[found]]
+        corner = found.copy()
+        corner[found] = reference.corner[idx[found]] if corners else False
+        n_matched = int(line.sum() + corner.sum())
         if n_matched < 6:
             break
-        qm = q[matched]
-        im = idx[matched]
+        # Point to line: one residual along the reference normal per matched point.
+        qm = q[line]
+        im = idx[line]
         n = reference.normals[im]
         d = qm - reference.points[im]
         e = n[:, 0] * d[:, 0] + n[:, 1] * d[:, 1]
         a = np.abs(e)
         w = np.where(a <= c.huber, 1.0, c.huber / np.maximum(a, 1e-12))
-        J = np.empty((n_matched, 3))
+        J = np.empty((len(e), 3))
         J[:, 0] = n[:, 0]
         J[:, 1] = n[:, 1]
         J[:, 2] = n[:, 1] * qm[:, 0] - n[:, 0] * qm[:, 1]
+        if corner.any():
+            # Point to point: two residuals (x, y) per corner point, Huber on their length.
+            qc = q[corner]
+            dc = qc - reference.points[idx[corner]]
+            ac = np.hypot(dc[:, 0], dc[:, 1])
+            wc = c.corner_weight * np.where(ac <= c.huber, 1.0,
+                                            c.huber / np.maximum(ac, 1e-12))
+            Jc = np.zeros((2 * len(qc), 3))
+            Jc[0::2, 0] = 1.0
+            Jc[0::2, 2] = -qc[:, 1]
+            Jc[1::2, 1] = 1.0
+            Jc[1::2, 2] = qc[:, 0]
+            J = np.concatenate([J, Jc])
+            e = np.concatenate([e, dc.ravel()])
+            w = np.concatenate([w, np.repeat(wc, 2)])
         Jw = J * w[:, None]
         H = Jw.T @ J
         wsum = float(w.sum())
@@ -140,9 +184,20 @@ def register(reference: Reference, points: FloatArray, initial: FloatArray,
         if abs(delta).max() < c.tolerance:
             converged = True
             break
-    return Registration(pose=pose, rms=rms, inliers=inliers,
-                        covariance=_covariance(H, wsum, rms, c), iterations=it,
-                        converged=converged)
+    reg = Registration(pose=pose, rms=rms, inliers=inliers,
+                       covariance=_covariance(H, wsum, rms, c), iterations=it,
+                       converged=converged)
+    return reg, H, wsum
+
+
+def _free_directions(H: FloatArray, wsum: float, c: RegistrationConfig) -> list[FloatArray]:
+    """Unit directions of translation few matched normals face (a corridor's axis).
+
+    ``H``'s xy block sums ``n n^T`` (weighted) over the matched points.
+    """
+    tv, tvec = np.linalg.eigh(H[:2, :2])
+    return [v for amount, v in zip(tv, tvec.T, strict=True)  # two directions
+            if amount < c.min_constraint or amount < c.degenerate_share * wsum]
 
 
 def _covariance(H: FloatArray, wsum: float, rms: float, c: RegistrationConfig) -> FloatArray:
@@ -154,9 +209,6 @@ def _covariance(H: FloatArray, wsum: float, rms: float, c: RegistrationConfig) -
     vals, vecs = np.linalg.eigh(H)
     inv = np.where(vals > sigma2 / big, 1.0 / np.maximum(vals, 1e-300), big / sigma2)
     cov = sigma2 * (vecs * inv) @ vecs.T
-    # Translation directions few normals face (H's xy block sums n n^T over the points).
-    tv, tvec = np.linalg.eigh(H[:2, :2])
-    for amount, v in zip(tv, tvec.T, strict=True):  # two directions
-        if amount < c.min_constraint or amount < c.degenerate_share * wsum:
-            cov[:2, :2] += big * np.outer(v, v)
+    for v in _free_directions(H, wsum, c):
+        cov[:2, :2] += big * np.outer(v, v)
     return cov + np.diag([c.min_sigma_xy**2, c.min_sigma_xy**2, c.min_sigma_theta**2])
