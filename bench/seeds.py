@@ -21,19 +21,9 @@ import numpy as np
 from drivers.scenario import load_scenario
 from drivers.simulator import Simulator
 from vmp.config import load_config
-from vmp.evaluate import ate
+from vmp.evaluate import ate, wrong_corrections
 from vmp.pipeline import Pipeline, PipelineConfig
 from vmp.vector_map import BeamGeometry
-
-
-def wrong_corrections(p: Pipeline, truth: np.ndarray, limit: float = 0.10) -> int:
-    """Corrections that moved the estimate more than ``limit`` farther from the truth."""
-    out = 0
-    for k, _kind, before, after in p.corrections:
-        t = truth[min(k, len(truth) - 1)]
-        if np.hypot(*(after[:2] - t[:2])) - np.hypot(*(before[:2] - t[:2])) > limit:
-            out += 1
-    return out
 
 
 def run(job: tuple[str, int, Path | None]) -> tuple[str, int, float, int]:
@@ -48,7 +38,7 @@ def run(job: tuple[str, int, Path | None]) -> tuple[str, int, float, int]:
     p.finish()
     truth = np.asarray(sim.true_poses)
     e = ate(sim.stamps, p.trajectory(), sim.stamps, truth).rmse
-    return name, seed, e, wrong_corrections(p, truth)
+    return name, seed, e, len(wrong_corrections(p.corrections, truth))
 
 
 def seeds_of(name: str, count: int) -> list[int]:

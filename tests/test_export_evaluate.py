@@ -9,7 +9,7 @@ import pytest
 import shapely
 
 from vmp.errors import InputError
-from vmp.evaluate import align_se2, ate, read_relations, relation_error, rpe
+from vmp.evaluate import align_se2, ate, read_relations, relation_error, rpe, wrong_corrections
 from vmp.export import (
     FREE,
     OCCUPIED,
@@ -189,3 +189,17 @@ def test_ate_and_rpe_equal_what_evo_computes(tmp_path):
                          delta_unit=evo_metrics.Unit.frames, all_pairs=True).stats["rmse"]
     assert math.isclose(ours_ate.rmse, theirs_ate, rel_tol=1e-6)
     assert math.isclose(ours_rpe.trans_rmse, theirs_rpe, rel_tol=1e-6)
+
+
+def test_wrong_corrections_are_those_that_move_away_from_the_truth_by_more_than_the_limit():
+    truth = np.zeros((3, 3))
+    corrections = [
+        (0, "anchor", np.array([0.3, 0.0, 0.0]), np.array([0.0, 0.0, 0.0])),  # towards
+        (1, "handover", np.array([0.0, 0.0, 0.0]), np.array([0.05, 0.0, 0.0])),  # 5 cm away
+        (2, "graph", np.array([0.0, 0.1, 0.0]), np.array([0.0, 0.25, 0.0])),  # 15 cm away
+        (9, "anchor", np.array([0.0, 0.0, 0.0]), np.array([0.0, -0.2, 0.0])),  # past the end
+    ]
+    assert wrong_corrections(corrections, truth) == [(2, "graph"), (9, "anchor")]
+    assert wrong_corrections(corrections, truth, limit=0.01) == [
+        (1, "handover"), (2, "graph"), (9, "anchor")]
+    assert wrong_corrections([], truth) == []

@@ -18,7 +18,7 @@ from vmp.fileio import read_table
 from vmp.types import FloatArray, compose, inverse, relative, wrap_angle
 
 __all__ = ["ATE", "RPE", "RelationError", "align_se2", "associate", "ate", "read_relations",
-           "relation_error", "rpe"]
+           "relation_error", "rpe", "wrong_corrections"]
 
 
 def associate(stamps_a: FloatArray, stamps_b: FloatArray,
@@ -156,3 +156,21 @@ def relation_error(stamps: FloatArray, poses: FloatArray, relations: FloatArray,
     _, t, r = relation_errors(stamps, poses, relations, max_difference)
     return RelationError(float(t.mean()), float(t.std()), float(r.mean()), float(r.std()),
                          len(t), len(relations))
+
+
+def wrong_corrections(corrections: list[tuple[int, str, FloatArray, FloatArray]],
+                      truth: FloatArray, limit: float = 0.10) -> list[tuple[int, str]]:
+    """The corrections that moved the estimate more than ``limit`` (m) farther from the truth.
+
+    ``corrections`` hold (scan index, kind, pose before, pose after), as
+    ``Pipeline.corrections`` does; ``truth`` is the true pose ``(S, 3)`` of every scan.
+    Returns (scan index, kind) of each wrong one.
+    """
+    if not corrections:
+        return []
+    t = np.asarray(truth, dtype=np.float64)
+    k = np.minimum([c[0] for c in corrections], len(t) - 1)
+    before = np.array([c[2][:2] for c in corrections])
+    after = np.array([c[3][:2] for c in corrections])
+    worse = (np.hypot(*(after - t[k, :2]).T) - np.hypot(*(before - t[k, :2]).T)) > limit
+    return [(int(corrections[i][0]), corrections[i][1]) for i in np.flatnonzero(worse)]

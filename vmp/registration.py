@@ -133,8 +133,9 @@ def _icp(reference: Reference, pts: FloatArray, initial: FloatArray, c: Registra
         found = dist < np.inf
         line = found.copy()
         line[found] = reference.valid[idx[found]]
-        corner = found.copy()
-        corner[found] = reference.corner[idx[found]] if corners else False
+        corner = np.zeros_like(found)
+        if corners:
+            corner[found] = reference.corner[idx[found]]
         n_matched = int(line.sum() + corner.sum())
         if n_matched < 6:
             break
