@@ -15,6 +15,7 @@ from vmp.types import (
     inverse,
     inverse_covariance,
     relative,
+    rotate_covariance,
     rotation_matrix,
     transform_points,
     wrap_angle,
@@ -166,3 +167,7 @@ def test_compose_and_inverse_covariances_match_sampling():
     turned = compose_covariance(np.array([0.0, 0.0, math.pi / 2]), np.zeros((3, 3)),
                                 np.zeros(3), np.diag([1.0, 0.0, 0.0]))
     np.testing.assert_allclose(turned, np.diag([0.0, 1.0, 0.0]), atol=1e-12)
+    np.testing.assert_allclose(rotate_covariance(np.diag([1.0, 0.0, 0.0]), math.pi / 2), turned,
+                               atol=1e-12)
+    back = rotate_covariance(rotate_covariance(cov_b, 0.8), -0.8)
+    np.testing.assert_allclose(back, cov_b, atol=1e-15)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from vmp.types import FloatArray, compose, wrap_angle
+from vmp.types import FloatArray, compose, rotate_covariance, wrap_angle
 
 __all__ = ["CHI2_3DOF_99", "MotionNoise", "PoseFilter", "motion_covariance", "pose_residual"]
 
@@ -94,10 +94,7 @@ class PoseFilter:
         u = np.asarray(u, dtype=np.float64)
         if covariance is None:
             covariance = motion_covariance(u, self.noise)
-        th = self._ekf.x[2]
-        c, s = np.cos(th), np.sin(th)
-        G = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        self._ekf.Q = G @ covariance @ G.T
+        self._ekf.Q = rotate_covariance(covariance, self._ekf.x[2])
         self._ekf.predict(u=u)
         self._ekf.x[2] = wrap_angle(self._ekf.x[2])
 

@@ -44,20 +44,12 @@ from vmp.types import (
     inverse,
     inverse_covariance,
     relative,
-    rotation_matrix,
+    rotate_covariance,
 )
 from vmp.vector_map import BeamGeometry, VectorMap
 from vmp.view import NullView, View
 
 __all__ = ["Match", "Pipeline", "PipelineConfig", "fuse"]
-
-
-def _frame_rotation(theta: float) -> FloatArray:
-    """Rotation ``(3, 3)`` taking a pose covariance from a frame turned by ``theta`` to the
-    outer frame (the heading is unchanged)."""
-    rot = np.eye(3)
-    rot[:2, :2] = rotation_matrix(theta)
-    return rot
 
 
 def fuse(a: FloatArray, cov_a: FloatArray, b: FloatArray, cov_b: FloatArray
@@ -202,8 +194,7 @@ class Pipeline:
                 self._odom_pose = compose(self._odom_offset, odom)
             u, q = self.scan_odometry.increment(frame.points(), wheel)
             self.filter.predict(u, q)
-            G = _frame_rotation(self.filter.pose[2])
-            self._q_since = self._q_since + G @ q @ G.T
+            self._q_since = self._q_since + rotate_covariance(q, self.filter.pose[2])
         self._last_odom = odom
         self._pending = None
         self._anchor_reg = None
@@ -263,8 +254,7 @@ class Pipeline:
                 if found is not None:
                     reg, seed = found, "search"
         z = compose(ms_pose, reg.pose)
-        rot = _frame_rotation(ms_pose[2])
-        R = rot @ reg.covariance @ rot.T
+        R = rotate_covariance(reg.covariance, ms_pose[2])
         if source == "anchor":
             # Only the motion since the last anchor correction may separate prediction and
             # match, so a registration that drags the robot elsewhere (say, towards a person
@@ -520,8 +510,8 @@ class Pipeline:
         self.stats["anchor switches"] += 1
         self._start_segment(m.milestone, handover=handover)
         if in_map is not None:
-            rot = _frame_rotation(self.milestones.pose(m.milestone)[2])
-            self._handover_cov = rot.T @ in_map @ rot
+            self._handover_cov = rotate_covariance(in_map,
+                                                   -self.milestones.pose(m.milestone)[2])
         self.view.event(f"scan {len(self.map)}: handed over from milestone {edge.i} to "
                         f"{edge.j} ({edge.kind} edge)")
         if edge.kind == "loop":

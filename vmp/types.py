@@ -24,6 +24,7 @@ __all__ = [
     "inverse",
     "inverse_covariance",
     "relative",
+    "rotate_covariance",
     "rotation_matrix",
     "transform_points",
     "wrap_angle",
@@ -68,6 +69,14 @@ def inverse(a: ArrayLike) -> FloatArray:
     return np.stack([x, y, wrap_angle(-a[..., 2])], axis=-1)
 
 
+def rotate_covariance(cov: ArrayLike, theta: float) -> FloatArray:
+    """A pose covariance ``(3, 3)`` given in a frame turned by ``theta``, in the outer frame
+    (the heading's variance is unchanged)."""
+    c, s = math.cos(theta), math.sin(theta)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return rot @ np.asarray(cov, dtype=np.float64) @ rot.T
+
+
 def compose_covariance(a: ArrayLike, cov_a: ArrayLike, b: ArrayLike, cov_b: ArrayLike
                        ) -> FloatArray:
     """Covariance ``(3, 3)`` of ``a (+) b`` for independent poses ``a`` and ``b`` (first order).
@@ -80,9 +89,7 @@ def compose_covariance(a: ArrayLike, cov_a: ArrayLike, b: ArrayLike, cov_b: Arra
     ja = np.array([[1.0, 0.0, -s * b[0] - c * b[1]],
                    [0.0, 1.0, c * b[0] - s * b[1]],
                    [0.0, 0.0, 1.0]])
-    jb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    out = ja @ np.asarray(cov_a, dtype=np.float64) @ ja.T + jb @ np.asarray(
-        cov_b, dtype=np.float64) @ jb.T
+    out = ja @ np.asarray(cov_a, dtype=np.float64) @ ja.T + rotate_covariance(cov_b, a[2])
     return 0.5 * (out + out.T)
 
 
