@@ -49,9 +49,9 @@ class ScanOdometryConfig:
     # Point-to-point matching of corner points (RegistrationConfig.corner_weight) for scan
     # odometry. Off: between keyframes a few decimetres apart its sampling bias (a corner is
     # hit at a slightly different place by every scan) adds up along the path. On (0.5), the
-    # median ATE over 4 corridor seeds went from 10.8 to 20.1 cm, over 8 warehouse seeds from
-    # 5.0 to 5.6 cm (bench/seeds.py warehouse corridor --count 4 --config FILE). Milestone
-    # matches keep it: their errors do not add up.
+    # median ATE over the first 4 corridor seeds went from 10.8 to 20.1 cm, over 8 warehouse
+    # seeds from 5.0 to 5.6 cm (python bench/seeds.py warehouse corridor --config FILE, FILE
+    # holding this key). Milestone matches keep it: their errors do not add up.
     corner_weight: float = 0.0
     # The wheel noise model (MotionNoise) is a floor, not the truth: a log with one scan per
     # half metre and several degrees of wheel error per step (GMapping's keyframes) would see
