@@ -24,25 +24,22 @@ from report import machine, write_section
 from drivers.scenario import load_scenario
 from drivers.simulator import Simulator
 from vmp.evaluate import ate
-from vmp.pipeline import Pipeline
-from vmp.vector_map import BeamGeometry
+from vmp.results import Result
+from vmp.run import MappingRun
+from vmp.source import FrameList
 
 
-def one_run(frames, geom, rrd: Path | None = None) -> tuple[float, Pipeline]:
+def one_run(frames: list, rrd: Path | None = None) -> tuple[float, Result]:
     view = None
     if rrd is not None:
         from viz.rerun_view import open_rerun
 
         view, _ = open_rerun(str(rrd))
-    p = Pipeline(geom, view=view)
     t = time.perf_counter()
-    for f in frames:
-        p.step(f)
-    p.finish()
-    p.trajectory()
+    result = MappingRun(FrameList(frames), view=view).run()
     if view is not None:
         view.close()
-    return time.perf_counter() - t, p
+    return time.perf_counter() - t, result
 
 
 def main() -> None:
@@ -55,15 +52,13 @@ def main() -> None:
     for name in args.scenarios:
         sim = Simulator(load_scenario(name))
         frames = list(sim)
-        s = sim.sensor
-        geom = BeamGeometry(s.beams, s.angle_min, s.angle_increment, s.max_range)
         times = []
         for _ in range(args.repeat):
-            dt, p = one_run(frames, geom)
+            dt, r = one_run(frames)
             times.append(dt)
         med = statistics.median(times)
-        traj = p.trajectory()
-        err = ate(sim.stamps, traj, sim.stamps, sim.true_poses).rmse
+        p = r.pipeline
+        err = ate(sim.stamps, r.trajectory, sim.stamps, sim.true_poses).rmse
         odo = ate(sim.stamps, sim.odom_poses, sim.stamps, sim.true_poses).rmse
         rows.append((name, len(frames), len(frames) / med, len(frames) / max(times),
                      len(frames) / min(times), p.map.bytes_per_scan, len(p.milestones),
@@ -93,16 +88,13 @@ def rerun_overhead(repeat: int) -> None:
     """Office with views off against office logging to a .rrd file, alternating runs."""
     import tempfile
 
-    sim = Simulator(load_scenario("office"))
-    frames = list(sim)
-    s = sim.sensor
-    geom = BeamGeometry(s.beams, s.angle_min, s.angle_increment, s.max_range)
+    frames = list(Simulator(load_scenario("office")))
     off, on = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(repeat):
-            off.append(one_run(frames, geom)[0])
+            off.append(one_run(frames)[0])
             rrd = Path(tmp) / f"office{k}.rrd"
-            on.append(one_run(frames, geom, rrd)[0])
+            on.append(one_run(frames, rrd)[0])
             size = rrd.stat().st_size
     ratio = statistics.median(on) / statistics.median(off)
     print(f"office with --rerun FILE: median {statistics.median(on):.2f} s against "

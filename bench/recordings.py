@@ -22,12 +22,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from report import machine, write_section
 
-from drivers.formats import open_recording
-from vmp.evaluate import ate_in_order, read_relations, relation_error, relation_errors
-from vmp.export import occupancy_grid, write_png
-from vmp.pipeline import Pipeline, PipelineConfig
-from vmp.scan_odometry import ScanOdometryConfig
-from vmp.vector_map import BeamGeometry
+from drivers import open_source
+from vmp.config import MappingConfig, ScanOdometryConfig
+from vmp.evaluate import read_relations, relation_error, relation_errors
+from vmp.export import write_png
+from vmp.results import Result
+from vmp.run import MappingRun
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 MAPS = Path(__file__).resolve().parent.parent / "docs" / "maps"
@@ -42,39 +42,24 @@ OTHERS = [
                "orebro", "belgioioso", "fhw", "edmonton", "acapulco")]
 
 
-def run(path: Path, config: PipelineConfig | None = None):
-    log = open_recording(path)
-    frames = iter(log)
-    first = next(frames)
-    geom = BeamGeometry(first.num_beams, first.angle_min, first.angle_increment,
-                        first.max_range)
-    p = Pipeline(geom, config)
-    stamps = []
+def run(path: Path, config: MappingConfig | None = None) -> tuple[Result, float]:
+    """Map a recording; the result and the wall time of the whole run."""
     t = time.perf_counter()
-    p.step(first)
-    stamps.append(first.stamp)
-    for f in frames:
-        if f.num_beams != geom.num_beams:
-            continue
-        p.step(f)
-        stamps.append(f.stamp)
-    p.finish()
-    traj = p.trajectory()
-    wall = time.perf_counter() - t
-    return p, np.array(stamps), traj, wall, log
+    result = MappingRun(open_source(str(path)), config).run()
+    return result, time.perf_counter() - t
 
 
-def save_map(p: Pipeline, traj: np.ndarray, name: str) -> Path:
-    grid = occupancy_grid(p.map.polygons(traj), p.map.world_points(traj), 0.1)
+def save_map(result: Result, name: str) -> Path:
     out = MAPS / f"{name}.png"
-    write_png(out, grid)
+    write_png(out, result.grid(0.1))
     return out
 
 
-def breakdown(stamps: np.ndarray, traj: np.ndarray, p: Pipeline) -> list[str]:
+def breakdown(r: Result) -> list[str]:
     """Where the Intel relation error comes from: by time span, the worst relations, loops."""
     relations = read_relations(DATA / "intel" / "intel.relations")
-    span, et, er = relation_errors(stamps, traj, relations)
+    stamps = r.stamps
+    span, et, er = relation_errors(stamps, r.trajectory, relations)
     lines = ["Where the error comes from (time between the two poses of a relation):", "",
              "| span | relations | translational (m) | rotational (deg) | share of the error |",
              "|---|---|---|---|---|"]
@@ -90,7 +75,7 @@ def breakdown(stamps: np.ndarray, traj: np.ndarray, p: Pipeline) -> list[str]:
     ends = ends[(ends >= stamps.min()) & (ends <= stamps.max())]
     t2 = np.sort(np.abs(ends - t0))
     graph = [round(float(stamps[min(k, len(stamps) - 1)] - t0))
-             for k, kind, _, _ in p.corrections if kind == "graph"]
+             for k, kind, _, _ in r.corrections if kind == "graph"]
     lines += ["", f"The worst 5 % of the relations ({len(worst)}) carry "
               f"{et[worst].sum() / et.sum():.0%} of the error; without them the mean is "
               f"{et[rest].mean():.3f} m. Graph adjustments after loop closures at "
@@ -107,19 +92,22 @@ def main() -> None:
     MAPS.mkdir(parents=True, exist_ok=True)
     lines = ["## Real recordings", "", f"`python bench/recordings.py` on {machine()}.", ""]
     if args.only in (None, "intel"):
-        p, stamps, traj, wall, _ = run(DATA / "intel" / "intel-first5505.clf.gz")
-        e = relation_error(stamps, traj, read_relations(DATA / "intel" / "intel.relations"))
-        duration = float(stamps.max() - stamps.min())
+        r, wall = run(DATA / "intel" / "intel-first5505.clf.gz")
+        p = r.pipeline
+        e = relation_error(r.stamps, r.trajectory,
+                           read_relations(DATA / "intel" / "intel.relations"))
+        duration = float(r.stamps.max() - r.stamps.min())
         acc = sum(v for k, v in p.stats.items() if "accepted" in k)
         rej = sum(v for k, v in p.stats.items() if "rejected" in k)
         print(f"intel: {e.trans_mean:.3f} +- {e.trans_std:.3f} m, {math.degrees(e.rot_mean):.2f} "
               f"+- {math.degrees(e.rot_std):.2f} deg on {e.used} relations; {wall:.1f} s for "
               f"{duration:.0f} s of data ({duration / wall:.0f}x real time); "
               f"{len(p.milestones)} milestones, {acc} matches accepted, {rej} rejected")
-        save_map(p, traj, "intel_part")
-        wheels = PipelineConfig(scan_odometry=ScanOdometryConfig(enabled=False))
-        _, stamps_w, traj_w, wall_w, _ = run(DATA / "intel" / "intel-first5505.clf.gz", wheels)
-        e_w = relation_error(stamps_w, traj_w, read_relations(DATA / "intel" / "intel.relations"))
+        save_map(r, "intel_part")
+        wheels = MappingConfig(scan_odometry=ScanOdometryConfig(enabled=False))
+        r_w, wall_w = run(DATA / "intel" / "intel-first5505.clf.gz", wheels)
+        e_w = relation_error(r_w.stamps, r_w.trajectory,
+                             read_relations(DATA / "intel" / "intel.relations"))
         print(f"intel without scan odometry: {e_w.trans_mean:.3f} +- {e_w.trans_std:.3f} m, "
               f"{math.degrees(e_w.rot_mean):.2f} deg; {wall_w:.1f} s")
         lines += [
@@ -145,25 +133,25 @@ def main() -> None:
             f"accepted, {rej} rejected, {p.stats['loop edges']} loop edges. Map: "
             "[docs/maps/intel_part.png](maps/intel_part.png).",
             "",
-        ] + breakdown(stamps, traj, p)
+        ] + breakdown(r)
     rows = []
     for name, rel, note in OTHERS:
         if args.only not in (None, name):
             continue
-        p, stamps, traj, wall, log = run(DATA / rel)
-        png = save_map(p, traj, name)
-        ref = getattr(log, "reference", None)
-        if ref and len(ref) == len(traj):  # GMapping's poses: pair by order
-            poses = np.array([q for _, q in ref])
-            ours = ate_in_order(traj, poses)
-            odo = ate_in_order(np.array(p.odometry), poses)
-            unknown = getattr(log, "unknown_increments", 0)
+        r, wall = run(DATA / rel)
+        p = r.pipeline
+        png = save_map(r, name)
+        m = r.metrics()
+        ours = m.get("ATE vs GMapping's poses (m)")
+        if ours is not None:  # paired by order
+            unknown = m["unknown odometry increments"]
+            odo = m["ATE of odometry vs GMapping's poses (m)"]
             note = (f"ATE vs GMapping {ours:.2f} m (raw odometry {odo:.2f} m)"
-                    + (f"; {unknown} of {len(traj)} odometry increments missing" if unknown
+                    + (f"; {unknown} of {r.scans} odometry increments missing" if unknown
                        else ""))
-        rows.append((name, rel, len(traj), wall, len(p.milestones), p.stats["loop edges"],
-                     log.skipped, note, png.name))
-        print(f"{name}: {len(traj)} scans in {wall:.1f} s, {len(p.milestones)} milestones, "
+        rows.append((name, rel, r.scans, wall, len(p.milestones), p.stats["loop edges"],
+                     r.report.skipped, note, png.name))
+        print(f"{name}: {r.scans} scans in {wall:.1f} s, {len(p.milestones)} milestones, "
               f"{p.stats['loop edges']} loop edges -> {png}")
     if rows:
         lines += ["Every other recording (maps at 0.1 m per cell in docs/maps). The Radish "

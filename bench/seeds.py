@@ -1,7 +1,7 @@
 """ATE of scenarios over several simulation seeds, with the default or a given configuration.
 
 Run: python bench/seeds.py warehouse corridor office lab [--count 8] [--jobs 2]
-     python bench/seeds.py warehouse --seeds 5 1 2 [--config bench/configs/warehouse_submap.yaml]
+     python bench/seeds.py warehouse --seeds 5 1 2 [--config my.yaml]
 
 Per scenario it prints the ATE (RMSE after SE(2) alignment, against the simulator's truth) of
 each seed, starting with the scenario's own, then the median and the maximum, and the number
@@ -16,29 +16,21 @@ import statistics
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-import numpy as np
-
+from drivers import open_source
 from drivers.scenario import load_scenario
-from drivers.simulator import Simulator
-from vmp.config import load_config
+from vmp.config import MappingConfig, load_config
 from vmp.evaluate import ate, wrong_corrections
-from vmp.pipeline import Pipeline, PipelineConfig
-from vmp.vector_map import BeamGeometry
+from vmp.run import MappingRun
 
 
 def run(job: tuple[str, int, Path | None]) -> tuple[str, int, float, int]:
     """One scenario and seed: (scenario, seed, ATE in metres, wrong corrections)."""
     name, seed, config_path = job
-    config = load_config(config_path) if config_path else PipelineConfig()
-    sim = Simulator(load_scenario(name), seed=seed)
-    s = sim.sensor
-    p = Pipeline(BeamGeometry(s.beams, s.angle_min, s.angle_increment, s.max_range), config)
-    for frame in sim:
-        p.step(frame)
-    p.finish()
-    truth = np.asarray(sim.true_poses)
-    e = ate(sim.stamps, p.trajectory(), sim.stamps, truth).rmse
-    return name, seed, e, len(wrong_corrections(p.corrections, truth))
+    config = load_config(config_path) if config_path else MappingConfig()
+    r = MappingRun(open_source(name, seed=seed), config).run()
+    truth = r.reference
+    e = ate(r.stamps, r.trajectory, truth.stamps, truth.poses).rmse
+    return name, seed, e, len(wrong_corrections(r.corrections, truth.poses))
 
 
 def seeds_of(name: str, count: int) -> list[int]:

@@ -28,9 +28,9 @@ def main() -> None:
         sc = load_scenario(name)
         n = len(Simulator(sc))
         med, times = median_time(lambda sc=sc: sum(1 for _ in Simulator(sc)), args.repeat)
-        rows.append((name, len(sc.walls), sc.sensor.beams, n, n / med, n / max(times),
-                     n / min(times)))
-        print(f"{name:10s} {len(sc.walls):4d} walls {sc.sensor.beams} beams {n:5d} scans: "
+        beams = sc.sensor.geometry.num_beams
+        rows.append((name, len(sc.walls), beams, n, n / med, n / max(times), n / min(times)))
+        print(f"{name:10s} {len(sc.walls):4d} walls {beams} beams {n:5d} scans: "
               f"median {n / med:,.0f} scans/s (range {n / max(times):,.0f}-{n / min(times):,.0f})")
     lines = [
         "## Simulator",

@@ -37,6 +37,7 @@ import numpy as np
 from drivers.textlog import LineLog
 from vmp import __version__
 from vmp.fileio import atomic_write
+from vmp.source import Reference, SourceReport, stack_reference
 from vmp.types import ScanFrame, compose, interpolate_pose, relative, wrap_angle
 
 __all__ = ["CarmenLog", "CarmenWriter", "parse_laser_line", "read_carmen", "write_carmen"]
@@ -172,19 +173,40 @@ class CarmenLog(LineLog):
     scans without odometry). In a GMapping output log (one with ``NEFF`` lines, like the
     corrected Radish logs) the FLASER poses are GMapping's corrected estimates, not odometry:
     the raw odometry is rebuilt from the ODOM lines (see :meth:`_rebuild`) and the corrected
-    poses are kept in :attr:`reference`, one per scan, to compare against.
+    poses are kept in :attr:`poses`, one per scan, to compare against (:meth:`reference`).
     """
 
     format_name = "CARMEN log"
 
     def __init__(self, path: str | os.PathLike[str], *, strict: bool = False) -> None:
         super().__init__(path, strict=strict)
-        self.reference: list[tuple[float, np.ndarray]] = []
+        # GMapping's corrected poses (stamp, pose), one per scan, in a GMapping output log.
+        self.poses: list[tuple[float, np.ndarray]] = []
         self.gmapping = False
         self.unknown_increments = 0
 
+    def reference(self) -> Reference | None:
+        """GMapping's corrected poses, one per scan, in a GMapping output log (paired by
+        order: such logs' stamps cannot be used); None in any other log."""
+        if not self.gmapping:
+            return None
+        return stack_reference([p for _, p in self.poses], "GMapping's poses", truth=False)
+
+    def report(self) -> SourceReport:
+        out = super().report()
+        if self.gmapping:
+            out.counts["unknown odometry increments"] = self.unknown_increments
+        return out
+
+    def notes(self) -> list[tuple[str, str]]:
+        if not self.gmapping:
+            return []
+        return [("note", f"GMapping output log: odometry rebuilt from its ODOM lines "
+                 f"({self.unknown_increments} of {max(self.scans - 1, 0)} increments unknown); "
+                 "its corrected poses are the reference")]
+
     def _frames(self, lines: Iterator[tuple[int, str]]) -> Iterator[ScanFrame]:
-        self.reference, self.gmapping, self.unknown_increments = [], False, 0
+        self.poses, self.gmapping, self.unknown_increments = [], False, 0
         params: dict[str, str] = {}
         odom_t: list[float] = []  # recent ODOM lines: stamps and poses
         odom_p: list[np.ndarray] = []
@@ -244,7 +266,7 @@ class CarmenLog(LineLog):
             self._line = lno
             yield _with_odom(f, interpolate_pose(odom_t, odom_p, f.stamp))
         if not self.gmapping:
-            self.reference = []
+            self.poses = []
 
     def _rebuild(self, frame: ScanFrame, odom_p: list[np.ndarray],
                  prev: tuple[np.ndarray, np.ndarray] | None
@@ -254,15 +276,15 @@ class CarmenLog(LineLog):
         GMapping writes each keyframe with its corrected pose P_k (as pose and as odometry),
         then an ODOM line with P_k, then dead-reckoned ODOM lines continuing from P_k. The raw
         increment to keyframe k+1 is ``inverse(P_k) (+) (last ODOM line before it)``; chained
-        from P_0 these give the robot's own odometry. P_k is kept in :attr:`reference`.
+        from P_0 these give the robot's own odometry. P_k is kept in :attr:`poses`.
         Where no dead-reckoned ODOM line lies between two keyframes (only GMapping's copy of
         P_k) the increment is unknown: that scan gets no odometry (counted in
         :attr:`unknown_increments`) and the chain goes on from the next known increment.
         """
         corrected = frame.odom
         assert corrected is not None
-        if self.gmapping or not self.reference:  # the first in case NEFF lines follow
-            self.reference.append((frame.stamp, corrected.copy()))
+        if self.gmapping or not self.poses:  # the first in case NEFF lines follow
+            self.poses.append((frame.stamp, corrected.copy()))
         if not self.gmapping or prev is None or not odom_p:
             return frame, (corrected, corrected)
         if self._odom_lines <= 1:

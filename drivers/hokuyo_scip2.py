@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from drivers import scip2_protocol as scip
-from drivers.serial_scanner import BeamLayout, DeviceError, ScanDriver
-from vmp.types import FloatArray
+from drivers.serial_scanner import DeviceError, ScanDriver
+from vmp.types import BeamGeometry, FloatArray
 
 __all__ = ["HokuyoScip2Driver"]
 
@@ -137,8 +137,8 @@ class HokuyoScip2Driver(ScanDriver):
         p["SCAN"] = int(scan) if scan.isdigit() and int(scan) > 0 else 600  # rpm
         return p
 
-    def connect(self) -> BeamLayout:
-        """QT, drain, SCIP2.0, PP, VV, then MD streaming until QT; the beam layout from PP."""
+    def connect(self) -> BeamGeometry:
+        """QT, drain, SCIP2.0, PP, VV, then MD streaming until QT; the beams from PP."""
         self._carry = b""
         self._stop_and_drain()
         self._transact(b"SCIP2.0", self._scip2_status)
@@ -158,8 +158,8 @@ class HokuyoScip2Driver(ScanDriver):
         self.reset_decoder()  # the parser now expects this request's echo
         self._start_stream()
         inc = 2 * math.pi / p["ARES"]
-        return BeamLayout(beams=self._count, angle_min=(first - p["AFRT"]) * inc,
-                          angle_increment=self.cluster * inc, max_range=p["DMAX"] / 1000.0)
+        return BeamGeometry(num_beams=self._count, angle_min=(first - p["AFRT"]) * inc,
+                            angle_increment=self.cluster * inc, max_range=p["DMAX"] / 1000.0)
 
     def _start_stream(self) -> None:
         """Send MD; its acknowledgement (or, if that was garbled, a scan) confirms it."""

@@ -233,6 +233,17 @@ class RosBagLog(LineLog):
         self.format_name = "ROS 2 bag / MCAP" if isinstance(self.bag, _Ros2Bag) else "ROS 1 bag"
         self.topics = self.bag.topics
         self.chosen_scan, self.chosen_odom = self._choose()
+        self._odom: tuple[FloatArray, FloatArray] | None = None
+        self._odom_problems: tuple[list[tuple[int, str]], int] = ([], 0)
+
+    def notes(self) -> list[tuple[str, str]]:
+        """The bag's topics, and which were chosen for scans and odometry."""
+        out = [("topics", "")]
+        for topic, (msgtype, count) in sorted(self.topics.items()):
+            used = (" <- scans" if topic == self.chosen_scan else
+                    " <- odometry" if topic == self.chosen_odom else "")
+            out.append(("", f"  {topic:<28} {msgtype:<32} {count:>7} messages{used}"))
+        return out
 
     def _choose(self) -> tuple[str, str | None]:
         topics = self.topics
@@ -254,7 +265,16 @@ class RosBagLog(LineLog):
         return scan, odom
 
     def _odometry(self) -> tuple[FloatArray, FloatArray]:
-        """Stamps and poses of the odometry topic, sorted by stamp."""
+        """Stamps and poses of the odometry topic, sorted by stamp (read once; its bad
+        messages count in every pass)."""
+        if self._odom is None:
+            self._odom = self._read_odometry()
+            self._odom_problems = (list(self.problems), self.skipped)
+        else:
+            self.problems, self.skipped = list(self._odom_problems[0]), self._odom_problems[1]
+        return self._odom
+
+    def _read_odometry(self) -> tuple[FloatArray, FloatArray]:
         if self.chosen_odom is None:
             return np.zeros(0), np.zeros((0, 3))
         is_tf = self.topics[self.chosen_odom][0] in TF_TYPES
@@ -281,6 +301,7 @@ class RosBagLog(LineLog):
 
     def __iter__(self) -> Iterator[ScanFrame]:
         self.problems, self.skipped, self.backwards, self.scans = [], 0, 0, 0
+        self._closed = False
         odom_t, odom_p = self._odometry()
         last = -math.inf
         for k, _, t_ns, m in self.bag.messages({self.chosen_scan}):
@@ -304,3 +325,5 @@ class RosBagLog(LineLog):
             last = max(last, frame.stamp)
             self.scans += 1
             yield frame
+            if self._closed:
+                return

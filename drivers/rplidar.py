@@ -26,8 +26,8 @@ import numpy as np
 
 from drivers import rplidar_protocol as rp
 from drivers.rplidar_protocol import DeviceInfo, Health, TurnAssembler
-from drivers.serial_scanner import BeamLayout, DeviceError, ScanDriver
-from vmp.types import FloatArray
+from drivers.serial_scanner import DeviceError, ScanDriver
+from vmp.types import BeamGeometry, FloatArray
 
 __all__ = ["RplidarDriver"]
 
@@ -73,7 +73,7 @@ class RplidarDriver(ScanDriver):
         self._carry = b""
 
     # -- protocol hooks ----------------------------------------------------------------------
-    def connect(self) -> BeamLayout:
+    def connect(self) -> BeamGeometry:
         """STOP, GET_HEALTH (RESET once if in error), GET_INFO, motor on, SCAN; the layout."""
         self._carry = b""
         self._stop_device()
@@ -90,7 +90,7 @@ class RplidarDriver(ScanDriver):
         self.write(rp.request(rp.SCAN))
         self._carry = self._reply(rp.SCAN_DESCRIPTOR, 0, "SCAN")  # first nodes, for decode()
         angle_min, inc = rp.beam_layout(self.beams)
-        return BeamLayout(self.beams, angle_min, inc, self.max_range)
+        return BeamGeometry(self.beams, angle_min, inc, self.max_range)
 
     def decode(self, data: bytes) -> list[FloatArray]:
         """Ranges (m, ``inf`` = no return) of each complete, plausible turn in the stream."""

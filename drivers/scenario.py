@@ -40,7 +40,7 @@ import numpy as np
 import yaml
 
 from vmp.errors import InputError
-from vmp.types import FloatArray
+from vmp.types import BeamGeometry, FloatArray
 
 __all__ = [
     "MovingObstacle",
@@ -59,21 +59,21 @@ class ScenarioError(InputError):
     """A scenario file that cannot be used; the message names the file and the key."""
 
 
+SICK_LMS200 = BeamGeometry(181, -math.pi / 2, math.radians(1.0), 8.0)  # 1 degree, 8 m mode
+
+
 @dataclass(frozen=True)
 class SensorModel:
-    """A 2D laser range finder: beam geometry, range limit and noise, scan rate."""
+    """A 2D laser range finder: its beams (a SICK LMS 200 by default), range noise, scan rate."""
 
-    beams: int = 181
-    angle_min: float = -math.pi / 2
-    angle_increment: float = math.radians(1.0)
-    max_range: float = 8.0
+    geometry: BeamGeometry = field(default_factory=lambda: SICK_LMS200)
     range_noise: float = 0.01
     rate_hz: float = 10.0
     dropout: float = 0.0
 
     @property
     def angles(self) -> FloatArray:
-        return self.angle_min + self.angle_increment * np.arange(self.beams)
+        return self.geometry.angles
 
 
 @dataclass(frozen=True)
@@ -295,18 +295,18 @@ def _read_sensor(node: _Node) -> SensorModel:
     keys = node.mapping({"beams", "angle_min_deg", "angle_increment_deg", "max_range",
                          "range_noise", "rate_hz", "dropout"})
     d = SensorModel()
-    beams = keys["beams"].integer(minimum=2) if "beams" in keys else d.beams
+    g = d.geometry
+    beams = keys["beams"].integer(minimum=2) if "beams" in keys else g.num_beams
     amin = (math.radians(keys["angle_min_deg"].number()) if "angle_min_deg" in keys
-            else d.angle_min)
+            else g.angle_min)
     inc = (math.radians(keys["angle_increment_deg"].number(positive=True))
-           if "angle_increment_deg" in keys else d.angle_increment)
+           if "angle_increment_deg" in keys else g.angle_increment)
     if inc * (beams - 1) > 2 * math.pi + 1e-9:
         raise node.fail("beams * angle_increment_deg covering at most 360 degrees")
+    max_range = (keys["max_range"].number(positive=True) if "max_range" in keys
+                 else g.max_range)
     return SensorModel(
-        beams=beams,
-        angle_min=amin,
-        angle_increment=inc,
-        max_range=keys["max_range"].number(positive=True) if "max_range" in keys else d.max_range,
+        BeamGeometry(beams, amin, inc, max_range),
         range_noise=(keys["range_noise"].number(nonneg=True) if "range_noise" in keys
                      else d.range_noise),
         rate_hz=keys["rate_hz"].number(positive=True) if "rate_hz" in keys else d.rate_hz,

@@ -1,7 +1,7 @@
 """What every serial laser scanner driver shares: the port, the counters, reconnection.
 
 A driver subclasses :class:`ScanDriver` with its protocol: :meth:`ScanDriver.connect` (the
-handshake that leaves the device streaming and says the beam layout) and
+handshake that leaves the device streaming and says its beam geometry) and
 :meth:`ScanDriver.decode` (bytes in, ranges of complete, checked scans out). The base class
 turns those into scan frames stamped on arrival, and when the device falls silent it closes
 the port and connects again with a growing back-off, counting each step in :class:`LinkStats`.
@@ -16,9 +16,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import serial
 
-from vmp.types import FloatArray, ScanFrame
+from vmp.types import BeamGeometry, FloatArray, ScanFrame
 
-__all__ = ["BeamLayout", "DeviceError", "LinkStats", "ScanDriver"]
+__all__ = ["DeviceError", "LinkStats", "ScanDriver"]
 
 
 class DeviceError(Exception):
@@ -51,16 +51,6 @@ class LinkStats:
                 f"{self.reconnects} reconnects")
 
 
-@dataclass(frozen=True)
-class BeamLayout:
-    """The beams a device delivers: count, first angle, increment (radians), range limit (m)."""
-
-    beams: int
-    angle_min: float
-    angle_increment: float
-    max_range: float
-
-
 class ScanDriver:
     """Base of the serial scanner drivers: frames from a port, reconnecting when it goes quiet.
 
@@ -86,13 +76,13 @@ class ScanDriver:
         self.clock = clock
         self.read_timeout = read_timeout
         self.stats = LinkStats()
-        self.layout: BeamLayout | None = None
+        self.geometry: BeamGeometry | None = None  # the beams, once connected
         self.last_error = ""
         self.ser: serial.Serial | None = None
         self._stop = False
 
     # -- protocol hooks ----------------------------------------------------------------------
-    def connect(self) -> BeamLayout:
+    def connect(self) -> BeamGeometry:
         """Bring the device on ``self.ser`` to streaming scans; raise DeviceError if it won't."""
         raise NotImplementedError
 
@@ -153,7 +143,7 @@ class ScanDriver:
         try:
             self.open_port()
             self.reset_decoder()
-            self.layout = self.connect()
+            self.geometry = self.connect()
             return True
         except (OSError, serial.SerialException, DeviceError) as exc:
             self.last_error = str(exc)
@@ -181,8 +171,8 @@ class ScanDriver:
             self._disconnect()
 
     def _stream(self) -> Iterator[ScanFrame]:
-        assert self.ser is not None and self.layout is not None
-        lay = self.layout
+        assert self.ser is not None and self.geometry is not None
+        lay = self.geometry
         last = time.monotonic()
         while not self._stop:
             try:

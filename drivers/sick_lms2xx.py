@@ -16,9 +16,9 @@ import time
 
 import numpy as np
 
-from drivers.serial_scanner import BeamLayout, DeviceError, ScanDriver
+from drivers.serial_scanner import DeviceError, ScanDriver
 from drivers.sick_protocol import Telegram, TelegramReceiver, decode_scan, request
-from vmp.types import FloatArray
+from vmp.types import BeamGeometry, FloatArray
 
 __all__ = ["SickLms2xx"]
 
@@ -104,7 +104,7 @@ class SickLms2xx(ScanDriver):
         raise DeviceError(f"{self.port}: no LMS answers at 9600, 19200, 38400 or 500000 baud")
 
     # -- ScanDriver hooks ----------------------------------------------------------------------
-    def connect(self) -> BeamLayout:
+    def connect(self) -> BeamGeometry:
         assert self.ser is not None
         self._early: list[Telegram] = []
         rate = self._find_rate()
@@ -132,9 +132,9 @@ class SickLms2xx(ScanDriver):
         self._mode(b"\x24", "continuous output", rx=self._rx)
         n = angle * 100 // res + 1
         unit = {0: 0.01, 1: 0.001, 2: 0.1}[self.units]
-        return BeamLayout(beams=n, angle_min=-math.radians(angle / 2.0),
-                          angle_increment=math.radians(res / 100.0),
-                          max_range=0x1FFE * unit)
+        return BeamGeometry(num_beams=n, angle_min=-math.radians(angle / 2.0),
+                            angle_increment=math.radians(res / 100.0),
+                            max_range=0x1FFE * unit)
 
     def reset_decoder(self) -> None:
         self._rx = TelegramReceiver()
@@ -142,7 +142,7 @@ class SickLms2xx(ScanDriver):
 
     def decode(self, data: bytes) -> list[FloatArray]:
         out = []
-        assert self.layout is not None
+        assert self.geometry is not None
         early, self._early = self._early, []
         for t in early + self._rx.feed(data):
             if t.command != 0xB0:
@@ -152,7 +152,7 @@ class SickLms2xx(ScanDriver):
             except ValueError:
                 self.stats.framing_errors += 1
                 continue
-            if ranges.size != self.layout.beams or not math.isclose(
+            if ranges.size != self.geometry.num_beams or not math.isclose(
                     unit, {0: 0.01, 1: 0.001, 2: 0.1}[self.units]):
                 self.stats.rejected += 1
                 continue

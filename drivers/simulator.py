@@ -13,7 +13,8 @@ import numpy as np
 
 from drivers.raycast import cast_discs, cast_segments
 from drivers.scenario import MovingObstacle, OdometryModel, Scenario, Trajectory
-from vmp.types import FloatArray, ScanFrame, relative, wrap_angle
+from vmp.source import Reference, SourceReport
+from vmp.types import BeamGeometry, FloatArray, ScanFrame, relative, wrap_angle
 
 __all__ = ["Simulator", "drive", "noisy_odometry", "obstacle_positions"]
 
@@ -121,7 +122,8 @@ class Simulator:
     """Iterate the scan frames of a scenario: ray-cast ranges, noisy odometry, true poses.
 
     ``laps`` overrides the scenario's number of laps, ``max_scans`` cuts the run short,
-    ``seed`` overrides the scenario's seed.
+    ``seed`` overrides the scenario's seed. A :class:`~vmp.source.Source` whose reference is
+    the true trajectory.
     """
 
     def __init__(self, scenario: Scenario, *, seed: int | None = None, laps: int | None = None,
@@ -134,7 +136,9 @@ class Simulator:
                 raise ValueError(f"{scenario.name}: laps need a closed trajectory")
             traj = dataclasses.replace(traj, laps=laps)
         self.scenario = scenario
+        self.name = scenario.name
         self.sensor = scenario.sensor
+        self._closed = False
         self.seed = scenario.seed if seed is None else seed
         self.batch = batch
         odo_seq, sensor_seq = np.random.SeedSequence(self.seed).spawn(2)
@@ -150,6 +154,25 @@ class Simulator:
 
     def __len__(self) -> int:
         return len(self.stamps)
+
+    @property
+    def geometry(self) -> BeamGeometry:
+        return self.sensor.geometry
+
+    @property
+    def length(self) -> int:
+        return len(self.stamps)
+
+    def reference(self) -> Reference:
+        """The true trajectory."""
+        return Reference(self.true_poses, "ground truth", truth=True, stamps=self.stamps)
+
+    def report(self) -> SourceReport:
+        return SourceReport(item="scan")
+
+    def close(self) -> None:
+        """End an iteration under way after the frame it is at."""
+        self._closed = True
 
     def ranges_at(self, poses: FloatArray, stamps: FloatArray | None = None,
                   rng: np.random.Generator | None = None) -> FloatArray:
@@ -176,13 +199,13 @@ class Simulator:
             r = np.where(hit, np.maximum(r, 1e-3), np.inf)
             if sensor.dropout > 0:
                 r[rng.random(r.shape) < sensor.dropout] = np.inf
-        r[r > sensor.max_range] = np.inf
+        r[r > sensor.geometry.max_range] = np.inf
         return r
 
     def _walls_near(self, origins: FloatArray) -> FloatArray:
         """Walls that may lie within range of any of the origins (box test, conservative)."""
         walls = self.scenario.walls
-        reach = self.sensor.max_range
+        reach = self.sensor.geometry.max_range
         lo = origins.min(axis=0) - reach
         hi = origins.max(axis=0) + reach
         seg_lo = np.minimum(walls[:, :2], walls[:, 2:])
@@ -192,7 +215,8 @@ class Simulator:
 
     def __iter__(self) -> Iterator[ScanFrame]:
         rng = np.random.default_rng(self._sensor_seq)
-        s = self.sensor
+        g = self.sensor.geometry
+        self._closed = False
         for b0 in range(0, len(self), self.batch):
             sl = slice(b0, b0 + self.batch)
             ranges = self.ranges_at(self.true_poses[sl], self.stamps[sl], rng)
@@ -201,13 +225,15 @@ class Simulator:
                 yield ScanFrame(
                     stamp=float(self.stamps[k]),
                     ranges=r,
-                    angle_min=s.angle_min,
-                    angle_increment=s.angle_increment,
-                    max_range=s.max_range,
+                    angle_min=g.angle_min,
+                    angle_increment=g.angle_increment,
+                    max_range=g.max_range,
                     odom=self.odom_poses[k],
                     true_pose=self.true_poses[k],
                     index=k,
                 )
+                if self._closed:
+                    return
 
     def station_ranges(
         self, rng: np.random.Generator | None = None

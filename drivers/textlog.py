@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import IO
 
 from vmp.errors import InputError
-from vmp.types import ScanFrame
+from vmp.source import Reference, SourceReport
+from vmp.types import BeamGeometry, ScanFrame
 
 __all__ = ["LineLog", "open_text"]
 
@@ -37,7 +38,7 @@ def open_text(path: Path) -> IO[str]:
 
 
 class LineLog:
-    """A recording with one message per line, read lazily.
+    """A recording with one message per line, read lazily; a :class:`~vmp.source.Source`.
 
     Subclasses turn lines into frames in :meth:`_frames`, calling :meth:`_bad` for a line
     that cannot be used: it is skipped and recorded in :attr:`problems` with its line number,
@@ -50,11 +51,47 @@ class LineLog:
 
     def __init__(self, path: str | os.PathLike[str], *, strict: bool = False) -> None:
         self.path = Path(path)
+        self.name = self.path.name.split(".")[0]
         self.strict = strict
         self.problems: list[tuple[int, str]] = []  # (line, what), the first 1,000
         self.skipped = 0
         self.backwards = 0
         self.scans = 0
+        self._geometry: BeamGeometry | None = None
+        self._closed = False
+
+    @property
+    def geometry(self) -> BeamGeometry:
+        """The beams of the first scan (read once, on first use)."""
+        if self._geometry is None:
+            frames = iter(self)
+            first = next(frames, None)
+            frames.close()
+            if first is None:
+                raise InputError(f"{self.path}: no laser scans in this {self.format_name}")
+            self._geometry = first.geometry
+        return self._geometry
+
+    @property
+    def length(self) -> int | None:
+        return None  # known only by reading the whole file
+
+    def reference(self) -> Reference | None:
+        """Poses to compare against: none in a plain log."""
+        return None
+
+    def report(self) -> SourceReport:
+        return SourceReport(self.item, self.skipped, self.backwards, list(self.problems),
+                            {f"bad {self.item}s skipped": self.skipped,
+                             "stamps running backwards": self.backwards})
+
+    def notes(self) -> list[tuple[str, str]]:
+        """What else there is to say about the recording, as (heading, text) lines."""
+        return []
+
+    def close(self) -> None:
+        """End an iteration under way after the frame it is at."""
+        self._closed = True
 
     def _bad(self, no: int, what: str, skip: bool = True) -> None:
         if self.strict:
@@ -69,6 +106,7 @@ class LineLog:
 
     def __iter__(self) -> Iterator[ScanFrame]:
         self.problems, self.skipped, self.backwards, self.scans = [], 0, 0, 0
+        self._closed = False
         try:
             f = open_text(self.path)
         except OSError as exc:
@@ -82,15 +120,8 @@ class LineLog:
                 last_stamp = max(last_stamp, frame.stamp)
                 self.scans += 1
                 yield frame
+                if self._closed:
+                    return
 
     def _frames(self, lines: Iterator[tuple[int, str]]) -> Iterator[ScanFrame]:
         raise NotImplementedError
-
-    def summary(self) -> str:
-        """One line on what was skipped or odd, with the first few line numbers."""
-        if not self.problems:
-            return f"{self.path}: {self.scans} scans, no bad {self.item}s"
-        first = "; ".join(f"{self.item} {no}: {what}" for no, what in self.problems[:3])
-        more = "; ..." if len(self.problems) > 3 else ""
-        return (f"{self.path}: {self.scans} scans, {self.skipped} bad {self.item}s skipped, "
-                f"{self.backwards} stamps running backwards ({first}{more})")

@@ -19,7 +19,7 @@ heading shift on the shortlist only.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -27,10 +27,22 @@ from numpy.typing import ArrayLike, NDArray
 from milestones.methods import METHODS, Method, make_method
 from milestones.signature import FloatArray, make_signature, sample_step
 
-__all__ = ["Candidate", "ManagerConfig", "MilestoneManager", "ScanGeometry"]
+__all__ = ["Candidate", "ManagerConfig", "MilestoneManager"]
 
 CHI2_2DOF_99 = 9.21
 CHI2_1DOF_99 = 6.63
+
+
+# Inside the manager: values nobody should need to tune (lengths in metres, angles in radians).
+MIN_RETURNED = 0.5  # fraction of beams that must have a return at a milestone
+MIN_RELIEF = 0.1  # standard deviation of a milestone's signature (m); below it: flat
+# A match elsewhere scoring under this (by method) marks a place as aliased.
+ALIAS_SCORE = {"cca": 0.02, "ed": 0.06, "dct": 0.06, "hwt": 0.06}
+DISTINCT_RADIUS = 2.0  # milestones closer than this are the same place
+MIN_OVERLAP = 0.5  # fraction of samples a shifted comparison must share
+SHORTLIST = 32  # candidates the exact search sees
+COARSE_STEP = 3  # samples between the shifts of the shortlist search
+HEADING_SIGMA = math.radians(3.0)  # heading error of a signature match
 
 
 @dataclass(frozen=True)
@@ -44,18 +56,8 @@ class ManagerConfig:
     keep: float = 0.1  # fraction of coefficients kept by DCT / HWT
     record_distance: float = 1.0  # record when this far from every milestone ...
     record_turn: float = math.radians(45.0)  # ... or turned this much from it
-    min_returned: float = 0.5  # fraction of beams that must have a return
-    min_relief: float = 0.1  # standard deviation of the signature (m), below it: flat
-    alias_score: float | None = None  # a match this good elsewhere means aliased (method default)
-    distinct_radius: float = 2.0  # milestones closer than this are the same place
     max_heading: float = math.radians(60.0)  # heading search window, either way
-    min_overlap: float = 0.5  # fraction of samples a shifted comparison must share
-    shortlist: int = 32  # candidates the exact search sees
-    coarse_step: int = 3  # samples between the shifts of the shortlist search
     recognition_radius: float = 1.0  # how far from a node its signature still matches (m)
-    heading_sigma: float = math.radians(3.0)  # heading error of a signature match
-    gate: float = CHI2_2DOF_99  # Mahalanobis gate on position (2 dof)
-    heading_gate: float = CHI2_1DOF_99  # gate on the implied heading (1 dof)
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -66,29 +68,11 @@ class ManagerConfig:
             raise ValueError(f"keep must be in (0, 1], got {self.keep}")
         if self.length < 8:
             raise ValueError(f"length must be at least 8, got {self.length}")
-        if self.shortlist < 2 or self.coarse_step < 1:
-            raise ValueError("shortlist must be >= 2 and coarse_step >= 1")
 
     @property
     def alias_threshold(self) -> float:
         """Score under which a match elsewhere marks a place as aliased."""
-        if self.alias_score is not None:
-            return self.alias_score
-        return 0.02 if self.method == "cca" else 0.06
-
-
-@dataclass(frozen=True)
-class ScanGeometry:
-    """The beams every scan given to one manager shares."""
-
-    num_beams: int
-    angle_min: float
-    angle_increment: float
-    max_range: float
-
-    @property
-    def circular(self) -> bool:
-        return abs(abs(self.angle_increment) * self.num_beams - 2 * math.pi) < 1e-6
+        return ALIAS_SCORE[self.method]
 
 
 @dataclass(frozen=True)
@@ -143,16 +127,21 @@ class _Skips:
     aliased: int = 0
 
 
+def _circular(beams: dict[str, float]) -> bool:
+    return abs(abs(beams["angle_increment"]) * beams["num_beams"] - 2 * math.pi) < 1e-6
+
+
 class MilestoneManager:
     """Records laser milestones along the path and finds the stored ones a live scan matches."""
 
-    def __init__(self, config: ManagerConfig | None = None,
-                 geometry: ScanGeometry | None = None) -> None:
+    def __init__(self, config: ManagerConfig | None = None) -> None:
         self.config = config or ManagerConfig()
         c = self.config
         self.method: Method = make_method(c.method, c.length, c.keep)
         self.compressor: Method = make_method(c.compression, c.length, c.keep)
-        self.geometry = geometry
+        # The beams of the first scan (count, first angle, increment, range limit): every
+        # later scan must share them. Plain values, so that this package needs no geometry type.
+        self.beams: dict[str, float] | None = None
         self._ids = _Rows(0, np.int64)
         self._poses = _Rows(3, np.float64)
         self._stamps = _Rows(0, np.float64)
@@ -219,24 +208,32 @@ class MilestoneManager:
         r = np.asarray(ranges, dtype=np.float64)
         if r.ndim != 1:
             raise ValueError(f"ranges must be 1-D, got shape {r.shape}")
-        g = ScanGeometry(len(r), float(angle_min), float(angle_increment), float(max_range))
+        beams = {"num_beams": len(r), "angle_min": float(angle_min),
+                 "angle_increment": float(angle_increment), "max_range": float(max_range)}
         reach = min(float(max_range), self.config.clamp_range)
-        sig = make_signature(r, reach, self.config.length, g.circular)
-        if self.geometry is None:
-            self.geometry = g
-        elif (g.num_beams, g.angle_min, g.angle_increment) != (
-                self.geometry.num_beams, self.geometry.angle_min,
-                self.geometry.angle_increment):
-            raise ValueError(f"scan geometry {g} differs from the milestones' {self.geometry}")
+        sig = make_signature(r, reach, self.config.length, _circular(beams))
+        if self.beams is None:
+            self.beams = beams
+        elif [beams[k] for k in ("num_beams", "angle_min", "angle_increment")] != [
+                self.beams[k] for k in ("num_beams", "angle_min", "angle_increment")]:
+            raise ValueError(f"scan beams {beams} differ from the milestones' {self.beams}")
         return sig
+
+    @property
+    def circular(self) -> bool:
+        """Whether the scans cover the full circle (known after the first scan)."""
+        if self.beams is None:
+            raise ValueError("no scan seen yet: the beams are unknown")
+        return _circular(self.beams)
 
     @property
     def step(self) -> float:
         """Angle between signature samples (radians)."""
-        g = self.geometry
-        if g is None:
+        b = self.beams
+        if b is None:
             raise ValueError("no scan seen yet: the signature step is unknown")
-        return sample_step(g.num_beams, g.angle_increment, self.config.length, g.circular)
+        return sample_step(int(b["num_beams"]), b["angle_increment"], self.config.length,
+                           self.circular)
 
     def _max_shift(self) -> int:
         return max(1, math.ceil(self.config.max_heading / abs(self.step)))
@@ -261,11 +258,11 @@ class MilestoneManager:
         reach = min(float(max_range), c.clamp_range)
         with np.errstate(invalid="ignore"):
             returned = np.isfinite(r) & (r > 0) & (r < reach)
-        if returned.mean() < c.min_returned:
+        if returned.mean() < MIN_RETURNED:
             return "few_returns"
-        if float(np.std(sig)) < c.min_relief:
+        if float(np.std(sig)) < MIN_RELIEF:
             return "flat"
-        far = np.hypot(*(self.poses[:, :2] - np.asarray(pose)[:2]).T) > c.distinct_radius
+        far = np.hypot(*(self.poses[:, :2] - np.asarray(pose)[:2]).T) > DISTINCT_RADIUS
         if far.any():
             rows = np.flatnonzero(far)
             best = self._search(sig, rows)
@@ -322,14 +319,14 @@ class MilestoneManager:
     def _shortlist(self, sig: FloatArray, rows: NDArray[np.int64]) -> NDArray[np.int64]:
         """Rows whose compressed features come nearest the query's at any coarse shift."""
         c = self.config
-        if len(rows) <= c.shortlist:
+        if len(rows) <= SHORTLIST:
             return rows
         L = c.length
         k_max = self._max_shift()
-        circular = self.geometry.circular
+        circular = self.circular
         if not circular:
-            k_max = min(k_max, int(L * (1 - c.min_overlap)))
-        shifts = np.arange(-k_max, k_max + 1, c.coarse_step)
+            k_max = min(k_max, int(L * (1 - MIN_OVERLAP)))
+        shifts = np.arange(-k_max, k_max + 1, COARSE_STEP)
         src = np.arange(L)[None, :] - shifts[:, None]
         src = src % L if circular else np.clip(src, 0, L - 1)
         q = self.compressor.encode(sig[src]).astype(np.float32)  # (K, F)
@@ -343,7 +340,7 @@ class MilestoneManager:
             fsq = sq[rows]
         d2 = fsq[:, None] - 2.0 * cross + (q * q).sum(axis=1)[None, :]
         best = d2.min(axis=1)
-        keep = np.argpartition(best, c.shortlist - 1)[: c.shortlist]
+        keep = np.argpartition(best, SHORTLIST - 1)[:SHORTLIST]
         return rows[keep]
 
     def _search(self, sig: FloatArray, rows: NDArray[np.int64]):
@@ -353,8 +350,7 @@ class MilestoneManager:
         rows = self._shortlist(sig, rows)
         stored = self.method.encode(self._sigs.view[rows].astype(np.float64))
         m = self.method.search(sig, stored, max_shift=self._max_shift(),
-                               min_overlap=self.config.min_overlap,
-                               circular=self.geometry.circular)
+                               min_overlap=MIN_OVERLAP, circular=self.circular)
         return rows, m.score, m.refined
 
     def query(self, ranges: NDArray, angle_min: float, angle_increment: float,
@@ -382,7 +378,7 @@ class MilestoneManager:
             S = cov[:2, :2] + np.eye(2) * c.recognition_radius**2
             delta = self.poses[:, :2] - pred[:2]
             gate_d2 = np.einsum("mi,ij,mj->m", delta, np.linalg.inv(S), delta)
-            rows = np.flatnonzero(gate_d2 <= c.gate)
+            rows = np.flatnonzero(gate_d2 <= CHI2_2DOF_99)
         found = self._search(sig, rows)
         if found is None:
             return []
@@ -393,13 +389,13 @@ class MilestoneManager:
         if predicted_pose is not None:
             implied = poses[:, 2] + offsets
             err = (implied - pred[2] + np.pi) % (2 * np.pi) - np.pi
-            ok = err**2 / (cov[2, 2] + c.heading_sigma**2) <= c.heading_gate
+            ok = err**2 / (cov[2, 2] + HEADING_SIGMA**2) <= CHI2_1DOF_99
             rows, scores, offsets, shifts, poses = (a[ok] for a in (rows, scores, offsets,
                                                                       shifts, poses))
         order = np.argsort(scores, kind="stable")
         out = []
         for i in order[:max_candidates]:  # a handful of candidates, not a hot loop
-            rivals = np.hypot(*(poses[:, :2] - poses[i, :2]).T) > c.distinct_radius
+            rivals = np.hypot(*(poses[:, :2] - poses[i, :2]).T) > DISTINCT_RADIUS
             rival = scores[rivals].min() if rivals.any() else np.inf
             ratio = float(scores[i] / rival) if np.isfinite(rival) and rival > 0 else 0.0
             out.append(Candidate(
@@ -417,7 +413,7 @@ class MilestoneManager:
         scans = self._scans
         return {
             "config": asdict(self.config),
-            "geometry": None if self.geometry is None else asdict(self.geometry),
+            "geometry": None if self.beams is None else dict(self.beams),
             "next_id": self._next_id,
             "ids": self.ids.copy(),
             "poses": self.poses.copy(),
@@ -431,9 +427,13 @@ class MilestoneManager:
     @classmethod
     def from_state(cls, state: dict) -> MilestoneManager:
         """The inverse of :meth:`state`."""
-        config = ManagerConfig(**state["config"])
-        geometry = ScanGeometry(**state["geometry"]) if state["geometry"] else None
-        mgr = cls(config, geometry)
+        # Files written before a setting became a constant still name it: ignore such keys.
+        known = {f.name for f in fields(ManagerConfig)}
+        config = ManagerConfig(**{k: v for k, v in state["config"].items() if k in known})
+        mgr = cls(config)
+        if state["geometry"]:
+            mgr.beams = {k: state["geometry"][k] for k in ("num_beams", "angle_min",
+                                                           "angle_increment", "max_range")}
         mgr._ids.extend(state["ids"])
         mgr._poses.extend(state["poses"])
         mgr._stamps.extend(state["stamps"])

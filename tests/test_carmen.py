@@ -107,7 +107,7 @@ def test_a_bad_line_is_skipped_counted_and_reported_or_stops_strict(tmp_path, ba
     frames = list(log)
     assert [f.stamp for f in frames] == [1.0, 3.0]
     assert log.skipped == 1 and log.problems[0][0] == 2 and what in log.problems[0][1]
-    assert "line 2" in log.summary()
+    assert "line 2" in log.report().summary("bad.clf")
     with pytest.raises(InputError, match=rf"bad\.clf:2: .*{what}"):
         list(CarmenLog(log_with(tmp_path, bad_line), strict=True))
 

@@ -1,10 +1,13 @@
 """The ``vmp`` command as a user meets it."""
 
+import json
+import math
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from vmp import __version__
 from vmp.cli import main
@@ -34,14 +37,6 @@ def test_same_seed_gives_identical_logs(tmp_path):
     assert a.read_bytes().replace(b"a.clf", b"") == b.read_bytes().replace(b"b.clf", b"")
     assert a.read_text() != c.read_text()
     assert a.with_suffix(".tum").read_bytes() == b.with_suffix(".tum").read_bytes()
-
-
-def run_cli(argv):
-    """Exit code of ``vmp ARGV``, whether argparse exits or ``main`` returns."""
-    try:
-        return main(argv)
-    except SystemExit as exc:
-        return exc.code
 
 
 @pytest.mark.parametrize(
@@ -96,3 +91,67 @@ def test_outputs_get_the_usual_file_mode(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert (out.stat().st_mode & 0o777) == 0o666 & ~mask
+
+
+def test_map_export_evaluate_commands(tmp_path, capsys):
+    out = tmp_path / "res"
+    assert main(["map", "lab", "--scans", "300", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "ATE (m)" in said and "scans per second" in said
+    latest = out / "latest"
+    assert json.loads((latest / "metrics.json").read_text())["scans"] == 300
+    for name in ("trajectory.tum", "online.tum", "odometry.tum", "ground_truth.tum",
+                 "map.vmpmap", "milestones.npz", "grid.yaml", "grid.pgm", "grid.png",
+                 "grid.npy", "contours.geojson", "graph.json", "config.yaml", "metrics.json"):
+        assert (latest / name).is_file(), name
+    grid = tmp_path / "g" / "map.yaml"
+    assert main(["export", str(latest), "--grid", str(grid), "--resolution", "0.1",
+                 "--png", str(tmp_path / "g.png"), "--npy", str(tmp_path / "g.npy")]) == 0
+    assert (tmp_path / "g" / "map.pgm").is_file()
+    assert np.load(tmp_path / "g.npy", allow_pickle=False).dtype == np.uint8
+    assert main(["evaluate", str(latest), "--ground-truth",
+                 str(latest / "ground_truth.tum")]) == 0
+    said = capsys.readouterr().out
+    rmse = float(said.split("ATE  rmse ")[1].split()[0])
+    assert rmse < 0.02
+    # The configuration written with a result maps the same way when given back.
+    assert main(["map", "lab", "--scans", "50", "--out", str(out), "-q", "--config",
+                 str(latest / "config.yaml")]) == 0
+    assert main(["map", "lab", "--scans", "50", "--out", str(out), "-q", "--config",
+                 str(latest / "config.yaml"), "--no-milestones", "--method", "dct"]) == 0
+    metrics = json.loads((out / "latest" / "metrics.json").read_text())
+    assert metrics["milestones"] == 1
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["map", "nowhere.clf"], "nowhere.clf: no such file"),
+    (["map", "lab", "--resolution", "-1"], "--resolution: expected a positive number"),
+    (["map", "lab", "--seed", "2", "--scans", "0"], "--scans: expected a positive integer"),
+    (["export", "."], "nothing to export"),
+    (["evaluate", "."], "give --ground-truth"),
+])
+def test_mapping_mistakes_get_one_line(tmp_path, monkeypatch, capsys, argv, message):
+    monkeypatch.chdir(tmp_path)
+    assert run_cli(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not (tmp_path / "results").exists() or not any((tmp_path / "results").iterdir())
+
+
+def test_bad_config_names_file_and_key(tmp_path, capsys):
+    bad = tmp_path / "c.yaml"
+    bad.write_text("registration: {max_iteration: 3}\n")
+    assert main(["map", "lab", "--scans", "5", "--config", str(bad), "--out",
+                 str(tmp_path)]) == 2
+    assert "c.yaml: registration.max_iteration: unknown key" in capsys.readouterr().err
+
+
+def test_map_of_a_carmen_log(tmp_path, capsys):
+    log = tmp_path / "lab.clf"
+    assert main(["simulate", "lab", "--scans", "200", "--out", str(log), "-q"]) == 0
+    assert main(["map", str(log), "--out", str(tmp_path / "r"), "-q"]) == 0
+    assert main(["evaluate", str(tmp_path / "r" / "latest"), "--ground-truth",
+                 str(log.with_suffix(".tum"))]) == 0
+    rmse = float(capsys.readouterr().out.split("ATE  rmse ")[1].split()[0])
+    assert rmse < 0.03
+    assert math.isfinite(rmse)

@@ -354,8 +354,8 @@ def test_session_delivers_intact_scans_exactly_and_never_a_corrupted_one(rate, s
         time.sleep(0.2)
         session.stop()
     drv = session.driver
-    lay = drv.layout
-    assert lay is not None and lay.beams == 682 and lay.max_range == 5.6
+    lay = drv.geometry
+    assert lay is not None and lay.num_beams == 682 and lay.max_range == 5.6
     assert lay.angle_min == pytest.approx((44 - 384) * 2 * math.pi / 1024)
     assert lay.angle_increment == pytest.approx(2 * math.pi / 1024)
     assert drv.params["DMAX"] == 5600
@@ -382,8 +382,8 @@ def test_session_with_a_step_range_and_clusters():
         session.wait(lambda: len(session.frames) >= 10, 5.0, "10 scans")
         session.stop()
     assert dev.commands[dev.commands.index(b"PP") + 1:].count(b"MD0100040003000") == 1
-    lay = session.driver.layout
-    assert lay is not None and lay.beams == 101 and session.frames[0].ranges.size == 101
+    lay = session.driver.geometry
+    assert lay is not None and lay.num_beams == 101 and session.frames[0].ranges.size == 101
     assert lay.angle_min == pytest.approx((100 - 384) * 2 * math.pi / 1024)
     assert lay.angle_increment == pytest.approx(3 * 2 * math.pi / 1024)
     _, delivered, foreign = _match(dev, session.frames)

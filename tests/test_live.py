@@ -1,23 +1,25 @@
-"""``vmp live`` on simulated devices: a map, a recording that replays bit for bit, clean Ctrl-C."""
+"""``vmp live`` on simulated devices: a map, a recording that replays bit for bit, clean stops."""
 
 from __future__ import annotations
 
 import json
 import os
+import signal
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_cli
 
 from drivers.carmen import CarmenLog
+from drivers.live import LiveSource
 from drivers.pose_feed import PoseFeed, parse_pose_line
 from drivers.scenario import load_scenario
 from drivers.serial_scanner import ScanDriver
 from drivers.simulator import Simulator
 from vmp.cli import main
-from vmp.live import LiveOptions, run_live
-from vmp.pipeline import PipelineConfig
+from vmp.run import MappingRun
 
 
 def _live(tmp_path: Path, *extra: str) -> Path:
@@ -62,38 +64,51 @@ def test_live_without_odometry_records_rawlaser_and_says_so(tmp_path) -> None:
     _replay_matches(tmp_path, result)
 
 
-def test_cli_refuses_simulation_options_on_a_real_port(capsys) -> None:
-    assert main(["live", "--driver", "sick", "--port", "/dev/null", "--speed", "3"]) == 2
+def test_cli_refuses_simulation_options_on_a_real_port(tmp_path, capsys) -> None:
+    out = ["--out", str(tmp_path)]
+    assert main(["live", "--driver", "sick", "--port", "/dev/null", "--speed", "3", *out]) == 2
     assert "--simulate only" in capsys.readouterr().err
-    assert main(["live", "--driver", "sick", "--simulate", "office", "--scans", "0"]) == 2
-    assert main(["live", "--driver", "rplidar", "--port", "/dev/ttyUSB-none"]) == 2
+    assert run_cli(["live", "--driver", "sick", "--simulate", "office", "--scans", "0"]) == 2
+    assert main(["live", "--driver", "rplidar", "--port", "/dev/ttyUSB-none", *out]) == 2
     assert "no such serial port" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # no results folder left behind
 
 
-class _InterruptedDriver(ScanDriver):
-    """Frames of a scenario, then Ctrl-C, as a user ends a run."""
+class _SignallingDriver(ScanDriver):
+    """Frames of a scenario; after ``after`` of them the process gets SIGTERM, as when a
+    service manager stops a run."""
 
     name = "test"
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, after: int) -> None:
         super().__init__("test://")
-        self.n = n
+        self.after = after
 
     def frames(self):
-        sim = Simulator(load_scenario("office"), max_scans=self.n)
-        for frame in sim:
+        for k, frame in enumerate(Simulator(load_scenario("office"), max_scans=400)):
+            if self._stop:
+                return
+            if k == self.after:
+                os.kill(os.getpid(), signal.SIGTERM)
             self.stats.scans += 1
             yield frame
-        raise KeyboardInterrupt
+            time.sleep(0.002)
 
 
-def test_ctrl_c_ends_cleanly_with_everything_written(tmp_path) -> None:
-    run = run_live(_InterruptedDriver(40), PipelineConfig(),
-                   LiveOptions(out=tmp_path, name="ctrlc", quiet=True))
-    assert run.interrupted
-    assert run.metrics["scans"] == 40
-    assert len(list(CarmenLog(run.log))) == 40
-    assert (run.out / "grid.pgm").stat().st_size > 0
+def test_sigterm_ends_a_live_run_with_everything_written(tmp_path) -> None:
+    source = LiveSource(_SignallingDriver(40), tmp_path / "live.clf")
+    try:
+        result = MappingRun(source).run()
+    finally:
+        source.shutdown()
+    assert result.interrupted == "SIGTERM"
+    # Stopped soon after the signal with what it had mapped (frames still queued behind the
+    # mapper are dropped); the recording holds exactly the mapped scans.
+    assert 1 <= result.scans <= 41
+    assert len(list(CarmenLog(tmp_path / "live.clf"))) == result.scans
+    result.write(tmp_path)
+    assert (tmp_path / "grid.pgm").stat().st_size > 0
+    assert result.metrics()["link: scans received"] >= result.scans
 
 
 def test_pose_feed_lines_and_interpolation(tmp_path) -> None:

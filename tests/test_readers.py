@@ -1,4 +1,5 @@
-"""Readers of the classic recordings in ../shared/data, on small excerpts, and format detection."""
+"""Readers of the classic recordings: excerpts committed in tests/data, the whole files in
+../shared/data (VMP_DATA) where present, and format detection."""
 
 import itertools
 import math
@@ -6,24 +7,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import EXCERPTS, shared_data
 
 from drivers.breezyslam import BreezySlamLog
 from drivers.dpslam import DpSlamLog
 from drivers.formats import detect_format, open_recording
-from drivers.textlog import open_text
 from vmp.errors import InputError
 
-DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 
-
-def excerpt(src: Path, dst: Path, lines: int) -> Path:
-    with open_text(src) as f:
-        dst.write_text("".join(itertools.islice(f, lines)))
-    return dst
-
-
-def test_dpslam_excerpt(tmp_path):
-    log = DpSlamLog(excerpt(DATA / "dpslam_duke_loop5" / "loop5.log", tmp_path / "l.log", 40))
+def test_dpslam_excerpt():
+    log = DpSlamLog(EXCERPTS / "loop5-excerpt.log.gz")
     frames = list(log)
     assert len(frames) == 20 and log.skipped == 0
     f = frames[0]
@@ -45,9 +38,8 @@ def test_dpslam_bad_lines(tmp_path):
         list(DpSlamLog(p, strict=True))
 
 
-def test_breezyslam_excerpt_ticks_to_odometry(tmp_path):
-    log = BreezySlamLog(excerpt(DATA / "breezyslam_mines" / "exp1.dat", tmp_path / "e.dat",
-                                60))
+def test_breezyslam_excerpt_ticks_to_odometry():
+    log = BreezySlamLog(EXCERPTS / "exp1-excerpt.dat.gz")
     frames = list(log)
     assert len(frames) == 60 and log.skipped == 0
     f = frames[0]
@@ -62,15 +54,29 @@ def test_breezyslam_excerpt_ticks_to_odometry(tmp_path):
     assert math.isclose(frames[1].stamp - frames[0].stamp, 0.1, abs_tol=0.02)
 
 
+@pytest.mark.parametrize("name, fmt", [
+    ("intel-excerpt.clf.gz", "carmen"),
+    ("fhw-excerpt.log.gz", "carmen"),
+    ("killian-excerpt.g2o.zip", "carmen"),
+    ("loop5-excerpt.log.gz", "dpslam"),
+    ("exp1-excerpt.dat.gz", "breezyslam"),
+    ("demo-excerpt.bag", "rosbag"),
+])
+def test_formats_are_detected_by_content(name, fmt):
+    assert detect_format(EXCERPTS / name) == fmt
+
+
 @pytest.mark.parametrize("relpath, fmt", [
     ("intel/intel-first5505.clf.gz", "carmen"),
+    ("aces/aces.clf.gz", "carmen"),
+    ("fr079/fr079.clf.gz", "carmen"),
     ("radish_gmapping_corrected/fhw-corrected.log.gz", "carmen"),
     ("dpslam_duke_loop5/loop5.log", "dpslam"),
     ("breezyslam_mines/exp1.dat", "breezyslam"),
     ("ccny_hokuyo_rosbag/demo.bag", "rosbag"),
 ])
-def test_formats_are_detected_by_content(relpath, fmt):
-    assert detect_format(DATA / relpath) == fmt
+def test_whole_recordings_are_detected_by_content(relpath, fmt):
+    assert detect_format(shared_data(relpath)) == fmt
 
 
 def test_unknown_and_broken_files_get_one_clear_error(tmp_path):
@@ -86,14 +92,25 @@ def test_unknown_and_broken_files_get_one_clear_error(tmp_path):
         open_recording(tmp_path / "missing.clf")
 
 
-BAG = DATA / "ccny_hokuyo_rosbag" / "demo.bag"
+BAG = "ccny_hokuyo_rosbag/demo.bag"
+
+
+def test_a_ros1_bag_excerpt_yields_its_scans():
+    from drivers.rosbag import RosBagLog, bag_topics
+
+    path = EXCERPTS / "demo-excerpt.bag"
+    assert bag_topics(path) == {"/scan": ("sensor_msgs/LaserScan", 8)}
+    frames = list(RosBagLog(path))
+    assert len(frames) == 8 and frames[0].num_beams == 681 and frames[0].odom is None
+    assert frames[0].max_range == pytest.approx(5.6)
 
 
 def test_demo_bag_opens_and_yields_its_scans():
     from drivers.rosbag import RosBagLog, bag_topics
 
-    assert bag_topics(BAG) == {"/scan": ("sensor_msgs/LaserScan", 360)}
-    log = RosBagLog(BAG)
+    bag = shared_data(BAG)
+    assert bag_topics(bag) == {"/scan": ("sensor_msgs/LaserScan", 360)}
+    log = RosBagLog(bag)
     frames = list(log)
     assert len(frames) == 360 and log.skipped == 0
     f = frames[0]
@@ -109,7 +126,7 @@ def test_why_rosbags_alone_cannot_open_the_demo_bag():
 
     from drivers.rosbag import _records
 
-    buf = BAG.read_bytes()
+    buf = shared_data(BAG).read_bytes()
     pos = 13
     (hlen,) = struct.unpack_from("<I", buf, pos)
     (dlen,) = struct.unpack_from("<I", buf, pos + 4 + hlen)
@@ -125,7 +142,7 @@ def test_a_truncated_bag_gets_a_clear_error(tmp_path):
     from drivers.rosbag import RosBagLog
 
     cut = tmp_path / "cut.bag"
-    cut.write_bytes(BAG.read_bytes()[:300_000])
+    cut.write_bytes(shared_data(BAG).read_bytes()[:300_000])
     with pytest.raises(InputError, match=r"cut\.bag"):
         list(RosBagLog(cut))
 
@@ -133,7 +150,7 @@ def test_a_truncated_bag_gets_a_clear_error(tmp_path):
 def test_killian_g2o_zip_reads_its_robotlaser_lines():
     from drivers.carmen import CarmenLog
 
-    path = DATA / "mit_killian" / "killian.g2o.zip"
+    path = EXCERPTS / "killian-excerpt.g2o.zip"
     assert detect_format(path) == "carmen"
     frames = list(itertools.islice(CarmenLog(path), 30))  # lazily, straight from the zip
     assert len(frames) == 30
@@ -178,7 +195,7 @@ def test_gmapping_log_gets_its_raw_odometry_rebuilt(tmp_path):
     assert frames[2].odom is None
     # the chain continues from keyframe 1's odometry by keyframe 2 -> 3's raw increment
     np.testing.assert_allclose(frames[3].odom, [1.5, 0.0, 0.0], atol=1e-5)  # %g in the log
-    ref = np.array([p for _, p in reader.reference])
+    ref = reader.reference().poses
     np.testing.assert_allclose(ref[:, 0], [0, 1.1, 2.0, 2.6])
 
 

@@ -127,7 +127,8 @@ def test_a_broken_message_is_skipped_and_reported_or_stops_with_strict(tmp_path)
     _write_bag(bag, "sqlite3", broken=5)
     log = RosBagLog(bag)
     assert len(list(log)) == 11 and log.skipped == 1
-    assert "message" in log.summary() and "bad LaserScan message" in log.summary()
+    summary = log.report().summary("run")
+    assert "message" in summary and "bad LaserScan message" in summary
     with pytest.raises(InputError, match="message"):
         list(RosBagLog(bag, strict=True))
 

@@ -20,9 +20,9 @@ def test_builtin_scenario_loads(name):
     assert sc.name == name
     assert sc.walls.ndim == 2 and sc.walls.shape[1] == 4 and len(sc.walls) > 4
     assert np.isfinite(sc.walls).all()
-    assert sc.sensor.beams == 181
-    assert math.isclose(math.degrees(sc.sensor.angle_increment), 1.0)
-    assert sc.sensor.max_range == 8.0 and sc.sensor.rate_hz == 10.0
+    assert sc.sensor.geometry.num_beams == 181
+    assert math.isclose(math.degrees(sc.sensor.geometry.angle_increment), 1.0)
+    assert sc.sensor.geometry.max_range == 8.0 and sc.sensor.rate_hz == 10.0
 
 
 def test_scenarios_hold_what_the_issue_asks_for():

@@ -17,6 +17,7 @@ Timelines: ``scan`` (index) and ``sensor_time``.
 
 from __future__ import annotations
 
+import time
 import uuid
 from pathlib import Path
 
@@ -195,6 +196,17 @@ class RerunView:
         h, w = cells.shape
         self.rec.send_blueprint(default_blueprint(
             (origin[0], origin[1], origin[0] + w * resolution, origin[1] + h * resolution)))
+
+    def hold(self) -> None:
+        """Keep serving the recording (``serve``) until Ctrl-C."""
+        self.flush()
+        self.rec.flush()
+        print("rerun: still serving; press Ctrl-C to stop", flush=True)
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
 
     def close(self) -> None:
         self.flush()

@@ -1,4 +1,4 @@
-"""``python -m vmp`` runs the ``vmp`` command."""
+"""``python -m vmp``: the ``vmp`` command."""
 
 from vmp.cli import main
 

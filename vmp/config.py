@@ -1,23 +1,100 @@
-"""The mapping configuration as a YAML file: written with every result, read with --config.
+"""The mapping configuration: every setting a run can be given, grouped by the part it tunes.
 
-Units are SI throughout, angles in radians. Unknown keys and wrong types are errors that name
-the file and the key.
+Written with every result as ``config.yaml`` and read back with ``--config``. Units are SI,
+angles in radians. Unknown keys and wrong types are errors that name the file and the key.
+
+Settings a user may need for another robot, sensor or building are fields here; the values
+inside one algorithm that nobody should have to touch are named constants in its module.
+This module imports only leaves (``milestones``' configuration, the error type, file helpers),
+so every part of the mapper can import its section from here.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from milestones.manager import ManagerConfig
 from vmp.errors import InputError
 from vmp.fileio import atomic_write
-from vmp.pipeline import PipelineConfig
 
-__all__ = ["config_from_dict", "config_to_dict", "load_config", "save_config"]
+__all__ = ["LoopConfig", "MapConfig", "MappingConfig", "MatchingConfig", "MotionNoise",
+           "RegistrationConfig", "ScanOdometryConfig", "config_from_dict", "config_to_dict",
+           "load_config", "save_config"]
+
+
+@dataclass(frozen=True)
+class MotionNoise:
+    """Wheel odometry noise: its variance grows linearly with distance and turn."""
+
+    trans_per_m: float = 0.05  # sigma of translation error accumulated over 1 m (m)
+    rot_per_m: float = math.radians(1.0)  # sigma of heading error per metre driven (rad)
+    rot_per_rad: float = 0.05  # sigma of heading error per radian turned (rad)
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """Which scan registrations are trusted (by the scan odometry, the matcher, the graph)."""
+
+    max_rms: float = 0.05  # residual RMS above which a fit is poor (m)
+    min_inliers: float = 0.5  # share of the live points that must find a partner
+
+
+@dataclass(frozen=True)
+class ScanOdometryConfig:
+    """Odometry refined by registering each scan against a recent keyframe."""
+
+    enabled: bool = True  # False: the filter predicts from the wheels alone
+    keyframe_distance: float = 0.3  # a new keyframe after this much travel (m) ...
+    keyframe_turn: float = math.radians(10.0)  # ... or this much turn (rad)
+
+
+@dataclass(frozen=True)
+class MatchingConfig:
+    """Matching live scans against stored milestones, and the verdicts on each match."""
+
+    enabled: bool = True  # False: no milestones at all (odometry and scan matching only)
+    candidates: int = 2  # signature candidates registered per scan, besides the anchor
+    max_ratio: float = 0.9  # signature score / best rival's above which a match is ambiguous
+    # A signature match registered from the milestone's node (the prediction having drifted
+    # too far for ICP) needs a clearer place and a closer fit.
+    retry_max_ratio: float = 0.7
+    retry_min_inliers: float = 0.75
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """Returns to stored milestones: handovers, loop edges, the graph's adjustment."""
+
+    switch_margin: float = 0.3  # hand over when another milestone is this much nearer (m)
+    separation: int = 5  # milestones this many recordings apart may close a loop
+    adjust_chi2: float = 1.0  # adjust the graph when a new loop edge disagrees this much
+    search_every: int = 5  # scans between two window searches for the same milestone
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """What the vector map keeps of each scan."""
+
+    no_return_free_range: float = 10.0  # how far a beam without a return marks free space (m)
+
+
+@dataclass(frozen=True)
+class MappingConfig:
+    """Everything that tunes a mapping run (saved with every result)."""
+
+    motion: MotionNoise = field(default_factory=MotionNoise)
+    scan_odometry: ScanOdometryConfig = field(default_factory=ScanOdometryConfig)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
+    milestones: ManagerConfig = field(default_factory=ManagerConfig)
+    matching: MatchingConfig = field(default_factory=MatchingConfig)
+    loops: LoopConfig = field(default_factory=LoopConfig)
+    map: MapConfig = field(default_factory=MapConfig)
 
 
 def config_to_dict(config: Any) -> dict:
@@ -34,7 +111,29 @@ def config_to_dict(config: Any) -> dict:
     return out
 
 
-def config_from_dict(doc: Any, source: str, cls: type = PipelineConfig,
+def _value(current: Any, value: Any, where: str) -> Any:
+    """``value`` checked against the type of the default ``current``; raises InputError."""
+    if isinstance(current, bool):
+        if not isinstance(value, bool):
+            raise InputError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if isinstance(current, int | float):
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or not math.isfinite(value):
+            raise InputError(f"{where}: expected a number, got {value!r}")
+        if isinstance(current, int):
+            if not float(value).is_integer():
+                raise InputError(f"{where}: expected a whole number, got {value!r}")
+            return int(value)
+        return float(value)
+    if isinstance(current, str):
+        if not isinstance(value, str):
+            raise InputError(f"{where}: expected a word, got {value!r}")
+        return value
+    return value
+
+
+def config_from_dict(doc: Any, source: str, cls: type = MappingConfig,
                      path: str = "") -> Any:
     """Build ``cls`` from a mapping, starting from its defaults; errors name source and key."""
     if doc is None:
@@ -42,7 +141,7 @@ def config_from_dict(doc: Any, source: str, cls: type = PipelineConfig,
     if not isinstance(doc, dict):
         raise InputError(f"{source}: {path or 'top level'}: expected a mapping of keys")
     defaults = cls()
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = {f.name for f in dataclasses.fields(cls)}
     changes = {}
     for key, value in doc.items():
         where = f"{path}.{key}" if path else str(key)
@@ -52,30 +151,16 @@ def config_from_dict(doc: Any, source: str, cls: type = PipelineConfig,
         current = getattr(defaults, key)
         if dataclasses.is_dataclass(current):
             changes[key] = config_from_dict(value, source, type(current), where)
-        elif isinstance(current, bool):
-            if not isinstance(value, bool):
-                raise InputError(f"{source}: {where}: expected true or false, got {value!r}")
-            changes[key] = value
-        elif isinstance(current, int | float) and current is not None:
-            if isinstance(value, bool) or not isinstance(value, int | float) \
-                    or not math.isfinite(value):
-                raise InputError(f"{source}: {where}: expected a number, got {value!r}")
-            changes[key] = type(current)(value) if isinstance(current, int) and \
-                float(value).is_integer() else float(value)
-        elif isinstance(current, tuple):
-            if not isinstance(value, list) or len(value) != len(current):
-                raise InputError(f"{source}: {where}: expected a list of {len(current)} "
-                                 f"numbers, got {value!r}")
-            changes[key] = tuple(float(v) for v in value)
         else:
-            changes[key] = value
+            changes[key] = _value(current, value, f"{source}: {where}")
     try:
         return dataclasses.replace(defaults, **changes)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{source}: {path or 'top level'}: {exc}") from exc
 
 
-def load_config(path: str | Path) -> PipelineConfig:
+def load_config(path: str | Path) -> MappingConfig:
+    """The configuration in a YAML file (keys left out keep their defaults)."""
     path = Path(path)
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
@@ -86,7 +171,7 @@ def load_config(path: str | Path) -> PipelineConfig:
     return config_from_dict(doc, str(path))
 
 
-def save_config(path: str | Path, config: PipelineConfig) -> None:
+def save_config(path: str | Path, config: MappingConfig) -> None:
     with atomic_write(path, "w") as f:
         f.write("# vmp-slam mapping configuration (SI units, angles in radians)\n")
         yaml.safe_dump(config_to_dict(config), f, sort_keys=False)

@@ -28,7 +28,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt, maximum_filter
+from scipy.ndimage import distance_transform_edt
 
 from vmp.types import FloatArray
 
@@ -47,20 +47,12 @@ class CorrelativeConfig:
     separation_xy: float = 0.3  # a runner-up is at least this far from the peak ...
     separation_theta: float = math.radians(6.0)  # ... or turned at least this much from it
     max_points: int = 120  # live points scored (evenly thinned beyond this)
-    # Beyond the window and out to this, a coarse look for rivals (0: off). Off by default: on
-    # the Intel part it vetoed true loops (its pooled upper bound is generous) and the run
-    # ended worse (0.44 m against 0.029 m), so the gate alone guards against copies of a
-    # place beyond the window for now.
-    wide_xy: float = 0.0
-    wide_step: float = 0.2  # its translation step (the grid is max-pooled over one step)
 
     def __post_init__(self) -> None:
         if not (self.resolution > 0 and self.sigma > 0 and self.step_theta > 0):
             raise ValueError("resolution, sigma and step_theta must be positive")
         if self.window_xy < 0 or self.window_theta < 0:
             raise ValueError("the search window must not be negative")
-        if self.wide_xy > self.window_xy and self.wide_step <= 0:
-            raise ValueError("wide_step must be positive")
         if self.max_points < 3:
             raise ValueError(f"max_points must be at least 3, got {self.max_points}")
 
@@ -113,18 +105,6 @@ class LikelihoodGrid:
             grid[: self.pad], grid[-self.pad:] = 0.0, 0.0
             grid[:, : self.pad], grid[:, -self.pad:] = 0.0, 0.0
         self.grid = grid
-        self._pooled: dict[int, FloatArray] = {}
-
-    def pooled(self, radius: int) -> FloatArray:
-        """The grid max-pooled over ``radius`` cells either way (cached): an upper bound of
-        the likelihood anywhere within ``radius`` cells."""
-        if radius <= 0:
-            return self.grid
-        out = self._pooled.get(radius)
-        if out is None:
-            out = self._pooled[radius] = maximum_filter(self.grid, size=2 * radius + 1,
-                                                        mode="constant", cval=0.0)
-        return out
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -143,17 +123,13 @@ class LikelihoodGrid:
         return float(vals.mean()) if len(vals) else 0.0
 
 
-def _steps(c: CorrelativeConfig, res: float) -> tuple[int, int, int]:
-    """Translation steps of the window, of the wide scan, and the wide scan's stride (cells)."""
-    steps = math.ceil(c.window_xy / res - 1e-9)
-    stride = 2 * max(round(c.wide_step / (2 * res)), 1)  # even: pooled over +-stride/2
-    wide_steps = math.ceil(c.wide_xy / (stride * res) - 1e-9) if c.wide_xy > c.window_xy else 0
-    return steps, wide_steps, stride
+def _steps(c: CorrelativeConfig, res: float) -> int:
+    """Translation steps of the window either way (cells)."""
+    return math.ceil(c.window_xy / res - 1e-9)
 
 
 def _padding(c: CorrelativeConfig, res: float) -> int:
-    steps, wide_steps, stride = _steps(c, res)
-    return 2 * max(steps, wide_steps * stride) + 1
+    return 2 * _steps(c, res) + 1
 
 
 def grid_for(points: FloatArray, config: CorrelativeConfig) -> LikelihoodGrid:
@@ -163,21 +139,19 @@ def grid_for(points: FloatArray, config: CorrelativeConfig) -> LikelihoodGrid:
 
 
 def _window_scores(grid: FloatArray, origin: FloatArray, res: float, qx: FloatArray,
-                   qy: FloatArray, steps: int, stride: int) -> FloatArray:
+                   qy: FloatArray, steps: int) -> FloatArray:
     """Mean grid value of the points ``(qx, qy)`` ``(R, M)`` under every offset
-    ``(i, j) * stride`` cells, ``|i|, |j| <= steps``: ``(R, T, T)``, ``T = 2 steps + 1``."""
-    reach = steps * stride
+    ``(i, j)`` cells, ``|i|, |j| <= steps``: ``(R, T, T)``, ``T = 2 steps + 1``."""
+    reach = steps
     cx = np.rint((qx - origin[0]) / res).astype(np.int64)
     cy = np.rint((qy - origin[1]) / res).astype(np.int64)
     # Points whose cell lies in the outer half of the padding score zero at every offset (the
     # likelihood starts ``pad`` cells in); they are left out.
     nx, ny = grid.shape
     ok = (cx >= reach) & (cx < nx - reach) & (cy >= reach) & (cy < ny - reach)
-    # Window views of the grid: view[i, j] is the (T, T) block of every stride-th cell from
-    # cell (i, j) on.
+    # Window views of the grid: view[i, j] is the (T, T) block from cell (i, j) on.
     size = 2 * reach + 1
-    windows = np.lib.stride_tricks.sliding_window_view(grid, (size, size))[..., ::stride,
-                                                                            ::stride]
+    windows = np.lib.stride_tricks.sliding_window_view(grid, (size, size))
     T = 2 * steps + 1
     scores = np.empty((qx.shape[0], T, T), dtype=np.float64)
     for r in range(qx.shape[0]):
@@ -194,11 +168,6 @@ def correlative_search(grid: LikelihoodGrid, points: FloatArray, center: FloatAr
     ``grid`` must be padded for the search (see :func:`grid_for`). Every rotation
     ``center[2] + k * step_theta`` within ``window_theta`` and every translation
     ``center[:2] + (i, j) * resolution`` within ``window_xy`` is scored.
-
-    Beyond the window, out to ``wide_xy``, a coarser scan looks for a rival (a repeated
-    structure whose period exceeds the window): it scores every ``wide_step`` on the grid
-    max-pooled over one step, an upper bound of the score anywhere near, so a place whose
-    copy lies just outside the window is not taken for unique.
     """
     c = config or CorrelativeConfig()
     pts = np.asarray(points, dtype=np.float64)
@@ -208,7 +177,7 @@ def correlative_search(grid: LikelihoodGrid, points: FloatArray, center: FloatAr
     if len(pts) > c.max_points:
         pts = pts[np.linspace(0, len(pts) - 1, c.max_points).round().astype(np.int64)]
     res = grid.resolution
-    steps, wide_steps, stride = _steps(c, res)
+    steps = _steps(c, res)
     need = _padding(c, res)
     if grid.pad < need:
         raise ValueError(f"the grid is padded by {grid.pad} cells, the search needs {need}")
@@ -219,7 +188,7 @@ def correlative_search(grid: LikelihoodGrid, points: FloatArray, center: FloatAr
     cos, sin = np.cos(thetas)[:, None], np.sin(thetas)[:, None]
     qx = center[0] + cos * pts[:, 0] - sin * pts[:, 1]
     qy = center[1] + sin * pts[:, 0] + cos * pts[:, 1]
-    scores = _window_scores(grid.grid, grid.origin, res, qx, qy, steps, 1)
+    scores = _window_scores(grid.grid, grid.origin, res, qx, qy, steps)
     searched = scores.size
     best = np.unravel_index(int(np.argmax(scores)), scores.shape)
     score = float(scores[best])
@@ -229,18 +198,6 @@ def correlative_search(grid: LikelihoodGrid, points: FloatArray, center: FloatAr
     dxy = np.hypot(*np.meshgrid(offsets * res - bx, offsets * res - by, indexing="ij"))
     near = (dth[:, None, None] < c.separation_theta) & (dxy[None] < c.separation_xy)
     runner_up = float(max(np.where(near, -np.inf, scores).max(), 0.0))
-    if wide_steps:
-        wide = _window_scores(grid.pooled(stride // 2), grid.origin, res, qx, qy, wide_steps,
-                              stride)
-        searched += wide.size
-        w = np.arange(-wide_steps, wide_steps + 1) * stride * res
-        wx, wy = np.meshgrid(w, w, indexing="ij")
-        # Only offsets outside the fine window (searched exactly above), and clear of the
-        # peak's shoulders.
-        outside = (np.maximum(np.abs(wx), np.abs(wy)) > c.window_xy + 0.5 * res) \
-            & (np.hypot(wx - bx, wy - by) >= 2.0 * c.separation_xy)
-        if outside.any():
-            runner_up = max(runner_up, float(wide[:, outside].max()))
     pose = np.array([center[0] + bx, center[1] + by,
                      (thetas[best[0]] + math.pi) % (2 * math.pi) - math.pi])
     return CorrelativeMatch(pose, score, runner_up, int(searched))

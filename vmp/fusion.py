@@ -9,38 +9,29 @@ theta is wrapped again after every update.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
+from vmp.config import MotionNoise
 from vmp.types import FloatArray, compose, rotate_covariance, wrap_angle
 
-__all__ = ["CHI2_3DOF_99", "MotionNoise", "PoseFilter", "motion_covariance", "pose_residual"]
+__all__ = ["CHI2_3DOF_99", "PoseFilter", "motion_covariance", "pose_residual"]
 
 CHI2_3DOF_99 = 11.34
 
 
-@dataclass(frozen=True)
-class MotionNoise:
-    """Odometry noise: variance grows linearly with distance and turn (sqrt growth of sigma)."""
-
-    trans_per_m: float = 0.05  # sigma of translation error accumulated over 1 m (m)
-    rot_per_m: float = math.radians(1.0)  # sigma of heading error per metre driven (rad)
-    rot_per_rad: float = 0.05  # sigma of heading error per radian turned (rad)
-    # sigma of translation error per radian turned (m): turning on the spot moves the scanner
-    # too (it sits off the axis the wheels turn about, and turning wheels slip sideways).
-    trans_per_rad: float = 0.0  # 0.02 suits keyframe logs (Radish), costs dense Intel
-    floor_xy: float = 0.001  # per step (m)
-    floor_theta: float = math.radians(0.05)  # per step (rad)
+# Per step, however short, the odometry is this uncertain (m, rad).
+FLOOR_XY = 0.001
+FLOOR_THETA = math.radians(0.05)
 
 
 def motion_covariance(u: FloatArray, noise: MotionNoise) -> FloatArray:
     """Covariance of an odometry increment ``u`` in its own (start) frame."""
     dist = float(np.hypot(u[0], u[1]))
     turn = abs(float(u[2]))
-    var_xy = noise.trans_per_m**2 * dist + noise.trans_per_rad**2 * turn + noise.floor_xy**2
-    var_th = noise.rot_per_m**2 * dist + noise.rot_per_rad**2 * turn + noise.floor_theta**2
+    var_xy = noise.trans_per_m**2 * dist + FLOOR_XY**2
+    var_th = noise.rot_per_m**2 * dist + noise.rot_per_rad**2 * turn + FLOOR_THETA**2
     return np.diag([var_xy, var_xy, var_th])
 
 

@@ -15,37 +15,37 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from vmp.config import RegistrationConfig
 from vmp.types import FloatArray
 
-__all__ = ["Reference", "Registration", "RegistrationConfig", "register"]
+__all__ = ["MIN_POINTS", "Reference", "Registration", "fits", "register"]
 
 
-@dataclass(frozen=True)
-class RegistrationConfig:
-    max_iterations: int = 30
-    start_distance: float = 0.5  # correspondence gate of the first iteration (m)
-    min_distance: float = 0.08  # the gate shrinks to this (m)
-    huber: float = 0.03  # residuals beyond this get Huber-down-weighted (m)
-    tolerance: float = 5e-4  # stop when a step moves less than this (m, rad)
-    neighbours: int = 5  # reference points per normal estimate
-    max_normal_spread: float = 0.3  # neighbours farther than this do not define a normal (m)
-    covariance_scale: float = 4.0  # ICP covariances are optimistic: inflate
-    min_sigma_xy: float = 0.005  # covariance floor (m)
-    min_sigma_theta: float = 0.002  # covariance floor (rad)
-    max_sigma: float = 100.0  # cap for unconstrained directions (m or rad)
-    # A direction of translation that few matched points' normals face (a corridor's axis) is
-    # degenerate, the fit says nothing there: fewer than this share of the points' summed
-    # squared cosines, or fewer than ``min_constraint`` of them.
-    degenerate_share: float = 0.05
-    min_constraint: float = 8.0
-    # Where point-to-line matching leaves a direction of translation free (a rack aisle, a
-    # corridor), the fit is run again with the reference points among close neighbours that
-    # do not lie on a line (a post, a corner, a pallet's end) matched point to point, with this
-    # weight relative to a line match. Isolated points (a wall sampled sparsely at a grazing
-    # angle) are never matched: their nearest partner slides with the robot. Only then, since
-    # a corner is hit at a slightly different place by every scan: used always, it cost the
-    # Intel run's revisits (0.029 -> 0.064 m). 0 turns corner matching off.
-    corner_weight: float = 0.5
+MIN_POINTS = 20  # a scan with fewer returns is neither registered nor matched
+# The ICP's own settings (lengths in metres, angles in radians).
+MAX_ITERATIONS = 30
+START_DISTANCE = 0.5  # correspondence gate of the first iteration
+MIN_DISTANCE = 0.08  # the gate shrinks to this
+HUBER = 0.03  # residuals beyond this get Huber-down-weighted
+TOLERANCE = 5e-4  # stop when a step moves less than this
+NEIGHBOURS = 5  # reference points per normal estimate
+MAX_NORMAL_SPREAD = 0.3  # neighbours farther than this do not define a normal
+COVARIANCE_SCALE = 4.0  # ICP covariances are optimistic: inflate
+MIN_SIGMA_XY = 0.005  # covariance floor
+MIN_SIGMA_THETA = 0.002
+MAX_SIGMA = 100.0  # cap for unconstrained directions
+# A direction of translation that few matched points' normals face (a corridor's axis) is
+# degenerate, the fit says nothing there: fewer than this share of the points' summed
+# squared cosines, or fewer than MIN_CONSTRAINT of them.
+DEGENERATE_SHARE = 0.05
+MIN_CONSTRAINT = 8.0
+# Where point-to-line matching leaves a direction of translation free (a rack aisle, a
+# corridor), the fit is run again with the reference points among close neighbours that do
+# not lie on a line (a post, a corner, a pallet's end) matched point to point, with this weight
+# relative to a line match. Isolated points (a wall sampled sparsely at a grazing angle) are
+# never matched: their nearest partner slides with the robot. Only then, since a corner is hit
+# at a slightly different place by every scan (docs/benchmarks.md, "Settings removed").
+CORNER_WEIGHT = 0.5
 
 
 @dataclass(frozen=True)
@@ -66,17 +66,16 @@ class Registration:
 class Reference:
     """Reference points ``(N, 2)`` with a k-d tree and per-point normals, built once."""
 
-    def __init__(self, points: FloatArray, config: RegistrationConfig | None = None) -> None:
-        self.config = config or RegistrationConfig()
+    def __init__(self, points: FloatArray) -> None:
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
             raise ValueError(f"a reference needs at least 3 points (N, 2), got {pts.shape}")
         self.points = pts
         self.tree = cKDTree(pts)
-        k = min(self.config.neighbours, len(pts))
+        k = min(NEIGHBOURS, len(pts))
         dist, idx = self.tree.query(pts, k=k)
         nb = pts[idx]  # (N, k, 2)
-        ok = dist <= self.config.max_normal_spread
+        ok = dist <= MAX_NORMAL_SPREAD
         w = ok.astype(np.float64)
         cnt = w.sum(axis=1)
         mean = (nb * w[..., None]).sum(axis=1) / cnt[:, None]
@@ -97,26 +96,32 @@ class Reference:
         self.corner = (cnt >= 3) & ~self.valid
 
 
+def fits(reg: Registration, config: RegistrationConfig) -> bool:
+    """Whether a registration fits well enough to be used: a close fit of most points."""
+    return bool(np.isfinite(reg.rms) and reg.rms <= config.max_rms
+                and reg.inliers >= config.min_inliers)
+
+
 def register(reference: Reference, points: FloatArray, initial: FloatArray,
-             config: RegistrationConfig | None = None) -> Registration:
+             corners: bool = True) -> Registration:
     """Point-to-line ICP of ``points`` ``(M, 2)`` (live scanner frame) onto the reference;
-    where that leaves a direction free, again with corner points matched point to point."""
-    c = config or reference.config
+    where that leaves a direction free and ``corners`` allows, again with corner points
+    matched point to point."""
     pts = np.asarray(points, dtype=np.float64)
-    reg, H, wsum = _icp(reference, pts, np.asarray(initial, dtype=np.float64), c, False)
-    if (c.corner_weight > 0 and reference.corner.any() and np.isfinite(reg.rms)
-            and _free_directions(H, wsum, c)):
-        with_corners, _, _ = _icp(reference, pts, reg.pose, c, True)
+    reg, H, wsum = _icp(reference, pts, np.asarray(initial, dtype=np.float64), False)
+    if (corners and reference.corner.any() and np.isfinite(reg.rms)
+            and _free_directions(H, wsum)):
+        with_corners, _, _ = _icp(reference, pts, reg.pose, True)
         if np.isfinite(with_corners.rms):
             return replace(with_corners, by_corners=True)
     return reg
 
 
-def _icp(reference: Reference, pts: FloatArray, initial: FloatArray, c: RegistrationConfig,
+def _icp(reference: Reference, pts: FloatArray, initial: FloatArray,
          corners: bool) -> tuple[Registration, FloatArray, float]:
     """One ICP run from ``initial``; the registration, its last ``H`` and weight sum."""
     pose = initial.copy()
-    gate = c.start_distance
+    gate = START_DISTANCE
     converged = False
     it = 0
     H = np.zeros((3, 3))
@@ -124,7 +129,7 @@ def _icp(reference: Reference, pts: FloatArray, initial: FloatArray, c: Registra
     inliers = 0.0
     wsum = 0.0
     px, py = pts[:, 0], pts[:, 1]
-    for it in range(1, c.max_iterations + 1):  # noqa: B007 - a few iterations, each vectorised
+    for it in range(1, MAX_ITERATIONS + 1):  # noqa: B007 - a few iterations, each vectorised
         cth, sth = math.cos(pose[2]), math.sin(pose[2])
         q = np.empty_like(pts)
         q[:, 0] = pose[0] + cth * px - sth * py
@@ -146,7 +151,7 @@ def _icp(reference: Reference, pts: FloatArray, initial: FloatArray, c: Registra
         d = qm - reference.points[im]
         e = n[:, 0] * d[:, 0] + n[:, 1] * d[:, 1]
         a = np.abs(e)
-        w = np.where(a <= c.huber, 1.0, c.huber / np.maximum(a, 1e-12))
+        w = np.where(a <= HUBER, 1.0, HUBER / np.maximum(a, 1e-12))
         J = np.empty((len(e), 3))
         J[:, 0] = n[:, 0]
         J[:, 1] = n[:, 1]
@@ -156,8 +161,7 @@ def _icp(reference: Reference, pts: FloatArray, initial: FloatArray, c: Registra
             qc = q[corner]
             dc = qc - reference.points[idx[corner]]
             ac = np.hypot(dc[:, 0], dc[:, 1])
-            wc = c.corner_weight * np.where(ac <= c.huber, 1.0,
-                                            c.huber / np.maximum(ac, 1e-12))
+            wc = CORNER_WEIGHT * np.where(ac <= HUBER, 1.0, HUBER / np.maximum(ac, 1e-12))
             Jc = np.zeros((2 * len(qc), 3))
             Jc[0::2, 0] = 1.0
             Jc[0::2, 2] = -qc[:, 1]
@@ -181,35 +185,35 @@ def _icp(reference: Reference, pts: FloatArray, initial: FloatArray, c: Registra
                          (pose[2] + delta[2] + math.pi) % (2 * math.pi) - math.pi])
         rms = math.sqrt(float(w @ (e * e)) / wsum)
         inliers = n_matched / len(pts)
-        gate = max(c.min_distance, min(gate, 4.0 * rms + 0.02))
-        if abs(delta).max() < c.tolerance:
+        gate = max(MIN_DISTANCE, min(gate, 4.0 * rms + 0.02))
+        if abs(delta).max() < TOLERANCE:
             converged = True
             break
     reg = Registration(pose=pose, rms=rms, inliers=inliers,
-                       covariance=_covariance(H, wsum, rms, c), iterations=it,
+                       covariance=_covariance(H, wsum, rms), iterations=it,
                        converged=converged)
     return reg, H, wsum
 
 
-def _free_directions(H: FloatArray, wsum: float, c: RegistrationConfig) -> list[FloatArray]:
+def _free_directions(H: FloatArray, wsum: float) -> list[FloatArray]:
     """Unit directions of translation few matched normals face (a corridor's axis).
 
     ``H``'s xy block sums ``n n^T`` (weighted) over the matched points.
     """
     tv, tvec = np.linalg.eigh(H[:2, :2])
     return [v for amount, v in zip(tv, tvec.T, strict=True)  # two directions
-            if amount < c.min_constraint or amount < c.degenerate_share * wsum]
+            if amount < MIN_CONSTRAINT or amount < DEGENERATE_SHARE * wsum]
 
 
-def _covariance(H: FloatArray, wsum: float, rms: float, c: RegistrationConfig) -> FloatArray:
+def _covariance(H: FloatArray, wsum: float, rms: float) -> FloatArray:
     """``s^2 H^-1``, with degenerate and unconstrained directions opened up, and a floor."""
-    big = c.max_sigma**2
+    big = MAX_SIGMA**2
     if not np.isfinite(rms) or wsum <= 0:
         return np.diag([big, big, big])
-    sigma2 = max(rms, c.min_sigma_xy) ** 2 * c.covariance_scale
+    sigma2 = max(rms, MIN_SIGMA_XY) ** 2 * COVARIANCE_SCALE
     vals, vecs = np.linalg.eigh(H)
     inv = np.where(vals > sigma2 / big, 1.0 / np.maximum(vals, 1e-300), big / sigma2)
     cov = sigma2 * (vecs * inv) @ vecs.T
-    for v in _free_directions(H, wsum, c):
+    for v in _free_directions(H, wsum):
         cov[:2, :2] += big * np.outer(v, v)
-    return cov + np.diag([c.min_sigma_xy**2, c.min_sigma_xy**2, c.min_sigma_theta**2])
+    return cov + np.diag([MIN_SIGMA_XY**2, MIN_SIGMA_XY**2, MIN_SIGMA_THETA**2])

@@ -1,4 +1,4 @@
-"""A mapping run's results folder: dated, with a ``latest`` link beside it.
+"""The outcome of a mapping run, and the results folder it is written to.
 
 ::
 
@@ -7,6 +7,7 @@
         online.tum           the filter's pose at each scan as it ran
         odometry.tum         the source's odometry
         ground_truth.tum     the true poses, when the source knows them (simulation)
+        reference.tum        another system's poses, when the source carries them (GMapping)
         map.vmpmap           the whole map (segments, milestones, graph, configuration)
         milestones.npz       the milestones alone (milestones.store format)
         grid.yaml, grid.pgm  occupancy grid, ROS map_server form; grid.png; grid.npy
@@ -22,15 +23,17 @@ from __future__ import annotations
 import datetime as dt
 import json
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from milestones.store import save_milestones
 from vmp import __version__
-from vmp.config import save_config
-from vmp.evaluate import ate
+from vmp.config import MappingConfig, config_to_dict, save_config
+from vmp.evaluate import ate, ate_in_order
 from vmp.export import (
+    Grid,
     free_space_contours,
     occupancy_grid,
     write_geojson,
@@ -41,13 +44,113 @@ from vmp.export import (
 from vmp.fileio import atomic_write
 from vmp.mapfile import save_map
 from vmp.pipeline import Pipeline
+from vmp.source import Reference, SourceReport
 from vmp.tum import write_tum
+from vmp.types import FloatArray
 
-__all__ = ["export_all", "new_results_dir", "write_results"]
+__all__ = ["Result", "export_all", "format_metrics", "link_latest", "new_results_dir"]
+
+
+@dataclass
+class Result:
+    """A finished (or interrupted) run: the map, the trajectories, what the source reported."""
+
+    label: str  # what was mapped, as the user named it
+    config: MappingConfig
+    pipeline: Pipeline
+    stamps: FloatArray  # (S,) of the mapped scans
+    trajectory: FloatArray  # (S, 3) poses in the assembled map
+    online: FloatArray  # (S, 3) the filter's pose after each scan, as it ran
+    odometry: FloatArray  # (S, 3) where odometry alone put the robot
+    reference: Reference | None  # the source's reference poses, one per mapped scan
+    report: SourceReport
+    mapping_time: float  # seconds of the run loop and the final adjustment
+    interrupted: str | None = None  # the signal that ended the run early, if one did
+    _grids: dict[float, Grid] = field(default_factory=dict, repr=False)
+
+    @property
+    def scans(self) -> int:
+        return len(self.stamps)
+
+    @property
+    def corrections(self) -> list[tuple[int, str, FloatArray, FloatArray]]:
+        """Every correction of the robot's pose: (scan index, kind, pose before, after)."""
+        return self.pipeline.corrections
+
+    def grid(self, resolution: float = 0.05) -> Grid:
+        """The occupancy grid of the assembled map (computed once per resolution)."""
+        if resolution not in self._grids:
+            vmap = self.pipeline.map
+            self._grids[resolution] = occupancy_grid(vmap.polygons(self.trajectory),
+                                                     vmap.world_points(self.trajectory),
+                                                     resolution)
+        return self._grids[resolution]
+
+    def metrics(self) -> dict:
+        """The run's figures: the pipeline's counts, accuracy where a reference exists, speed."""
+        out: dict = {"source": self.label, "version": __version__}
+        out.update(self.report.counts)
+        out.update(self.pipeline.summary())
+        ref = self.reference
+        if ref is not None and self.scans > 2:
+            if ref.truth:
+                out["ATE (m)"] = self._ate(self.trajectory)
+                out["ATE odometry alone (m)"] = self._ate(self.odometry)
+            else:
+                out[f"ATE vs {ref.label} (m)"] = self._ate(self.trajectory)
+                out[f"ATE of odometry vs {ref.label} (m)"] = self._ate(self.odometry)
+        out["mapping time (s)"] = self.mapping_time
+        out["scans per second"] = self.scans / max(self.mapping_time, 1e-9)
+        if self.scans > 1:
+            out["data duration (s)"] = float(self.stamps.max() - self.stamps.min())
+        if self.interrupted:
+            out["interrupted by"] = self.interrupted
+        return out
+
+    def _ate(self, poses: FloatArray) -> float:
+        ref = self.reference
+        if ref.stamps is None:
+            return ate_in_order(poses, ref.poses)
+        return ate(self.stamps, poses, ref.stamps, ref.poses).rmse
+
+    def write(self, out: Path, resolution: float = 0.05) -> dict:
+        """Write every output into the folder ``out``; returns the metrics."""
+        write_tum(out / "trajectory.tum", self.stamps, self.trajectory)
+        write_tum(out / "online.tum", self.stamps, self.online)
+        write_tum(out / "odometry.tum", self.stamps, self.odometry)
+        if self.reference is not None:
+            name = "ground_truth.tum" if self.reference.truth else "reference.tum"
+            write_tum(out / name, self.stamps, self.reference.poses)
+        p = self.pipeline
+        save_map(out / "map.vmpmap", p.map, p.milestones, p.back.graph,
+                 config_to_dict(self.config), self.trajectory)
+        save_milestones(out / "milestones.npz", p.milestones)
+        save_config(out / "config.yaml", self.config)
+        export_all(out, self, resolution)
+        metrics = self.metrics()
+        with atomic_write(out / "metrics.json", "w") as f:
+            json.dump(metrics, f, indent=1, default=float)
+        return metrics
+
+
+def export_all(out: Path, result: Result, resolution: float, contours: bool = True) -> None:
+    """Grid (map_server, PNG, npy), contours and graph of a result."""
+    grid = result.grid(resolution)
+    write_ros_map(out / "grid.yaml", grid)
+    write_png(out / "grid.png", grid)
+    with atomic_write(out / "grid.npy", "wb") as f:
+        np.save(f, grid.cells, allow_pickle=False)
+    if contours:
+        geom = free_space_contours(result.pipeline.map.polygons(result.trajectory))
+        write_geojson(out / "contours.geojson", geom,
+                      {"what": "boundary of free space", "area_m2": round(geom.area, 3)})
+    ms = result.pipeline.milestones
+    write_graph_json(out / "graph.json", ms.ids, ms.poses, ms.stamps,
+                     result.pipeline.back.graph.edges)
 
 
 def new_results_dir(root: Path, name: str) -> Path:
-    """Create ``root/NAME-YYYYmmdd-HHMMSS`` (unique) and point ``root/latest`` at it."""
+    """Create ``root/NAME-YYYYmmdd-HHMMSS`` (unique); :func:`link_latest` points at it later."""
     root.mkdir(parents=True, exist_ok=True)
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     path = root / f"{name}-{stamp}"
@@ -56,77 +159,21 @@ def new_results_dir(root: Path, name: str) -> Path:
         k += 1
         path = root / f"{name}-{stamp}-{k}"
     path.mkdir()
+    return path
+
+
+def link_latest(folder: Path) -> None:
+    """Point ``latest`` beside ``folder`` at it (once everything in it is written)."""
+    root = folder.parent
     link = root / "latest"
     tmp = root / f".latest.{os.getpid()}"
     try:
         if tmp.is_symlink() or tmp.exists():
             tmp.unlink()
-        tmp.symlink_to(path.name)
+        tmp.symlink_to(folder.name)
         os.replace(tmp, link)
     except OSError:  # a file system without links: the dated folder still holds everything
         pass
-    return path
-
-
-def export_all(out: Path, vmap, poses: np.ndarray, milestones, graph, resolution: float,
-               contours: bool = True) -> dict[str, str]:
-    """Grid (map_server, PNG, npy), contours and graph of a map with scan ``poses``."""
-    polys = vmap.polygons(poses)
-    hits = vmap.world_points(poses)
-    grid = occupancy_grid(polys, hits, resolution)
-    written = {}
-    write_ros_map(out / "grid.yaml", grid)
-    write_png(out / "grid.png", grid)
-    with atomic_write(out / "grid.npy", "wb") as f:
-        np.save(f, grid.cells, allow_pickle=False)
-    written["grid"] = str(out / "grid.yaml")
-    if contours:
-        geom = free_space_contours(polys)
-        write_geojson(out / "contours.geojson", geom,
-                      {"what": "boundary of free space", "area_m2": round(geom.area, 3)})
-        written["contours"] = str(out / "contours.geojson")
-    write_graph_json(out / "graph.json", milestones.ids, milestones.poses, milestones.stamps,
-                     graph.edges)
-    written["graph"] = str(out / "graph.json")
-    return written
-
-
-def write_results(out: Path, pipeline: Pipeline, stamps: np.ndarray, source: str,
-                  resolution: float = 0.05, extra: dict | None = None) -> dict:
-    """Write every output of a finished run into ``out``; returns the metrics.
-
-    ``extra`` entries (plain values) join the metrics after the source.
-    """
-    from vmp.config import config_to_dict
-
-    mapping_time = pipeline.wall_time
-    traj = pipeline.trajectory()
-    online = np.array(pipeline.online)
-    odom = np.array(pipeline.odometry)
-    write_tum(out / "trajectory.tum", stamps, traj)
-    write_tum(out / "online.tum", stamps, online)
-    write_tum(out / "odometry.tum", stamps, odom)
-    metrics: dict = {"source": source, "version": __version__}
-    metrics.update(extra or {})
-    metrics.update(pipeline.summary())
-    truth = pipeline.truth
-    if all(t is not None for t in truth) and len(truth) > 2:
-        gt = np.array(truth)
-        write_tum(out / "ground_truth.tum", stamps, gt)
-        metrics["ATE (m)"] = ate(stamps, traj, stamps, gt).rmse
-        metrics["ATE odometry alone (m)"] = ate(stamps, odom, stamps, gt).rmse
-    save_map(out / "map.vmpmap", pipeline.map, pipeline.milestones, pipeline.graph,
-             config_to_dict(pipeline.config), traj)
-    save_milestones(out / "milestones.npz", pipeline.milestones)
-    save_config(out / "config.yaml", pipeline.config)
-    export_all(out, pipeline.map, traj, pipeline.milestones, pipeline.graph, resolution)
-    metrics["mapping time (s)"] = mapping_time
-    metrics["scans per second"] = len(traj) / max(mapping_time, 1e-9)
-    if len(stamps) > 1:
-        metrics["data duration (s)"] = float(stamps.max() - stamps.min())
-    with atomic_write(out / "metrics.json", "w") as f:
-        json.dump(metrics, f, indent=1, default=float)
-    return metrics
 
 
 def format_metrics(metrics: dict) -> str:

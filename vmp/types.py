@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 FloatArray = NDArray[np.float64]
 
 __all__ = [
+    "BeamGeometry",
     "ScanFrame",
     "compose",
     "compose_covariance",
@@ -147,6 +148,34 @@ def interpolate_pose(stamps: ArrayLike, poses: ArrayLike, t: float) -> FloatArra
     out[2] = float(wrap_angle(a[2] + f * float(wrap_angle(b[2] - a[2]))))
     return out
 
+
+@dataclass(frozen=True)
+class BeamGeometry:
+    """The beams of a laser scanner: count, first angle, increment (rad), range limit (m).
+
+    Every scan of one source, and so of one map, shares them.
+    """
+
+    num_beams: int
+    angle_min: float
+    angle_increment: float
+    max_range: float
+
+    @property
+    def angles(self) -> FloatArray:
+        """Beam angles in the scanner frame (radians)."""
+        return self.angle_min + self.angle_increment * np.arange(self.num_beams)
+
+    @property
+    def field_of_view(self) -> float:
+        """Angle covered by the beams: the span between first and last plus one step."""
+        return float(abs(self.angle_increment) * self.num_beams)
+
+    @property
+    def full_circle(self) -> bool:
+        return self.field_of_view >= 2 * np.pi - 1e-6
+
+
 def _readonly(a: ArrayLike, dtype: type = np.float64) -> FloatArray:
     out = np.array(a, dtype=dtype, copy=True)
     out.flags.writeable = False
@@ -212,6 +241,11 @@ class ScanFrame:
         return int(self.ranges.size)
 
     @property
+    def geometry(self) -> BeamGeometry:
+        """The beams of this scan."""
+        return BeamGeometry(self.num_beams, self.angle_min, self.angle_increment, self.max_range)
+
+    @property
     def angles(self) -> FloatArray:
         """Beam angles in the scanner frame (radians)."""
         return self.angle_min + self.angle_increment * np.arange(self.ranges.size)
@@ -223,7 +257,7 @@ class ScanFrame:
     @property
     def field_of_view(self) -> float:
         """Angle covered by the beams: the span between first and last plus one step."""
-        return float(abs(self.angle_increment) * self.ranges.size)
+        return self.geometry.field_of_view
 
     @property
     def returned(self) -> NDArray[np.bool_]:

@@ -13,32 +13,20 @@ segment and 8 of stamp: 1,507 bytes a scan.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import NDArray
 
-from vmp.types import FloatArray, compose, inverse, relative, transform_points, wrap_angle
+from vmp.types import (
+    BeamGeometry,
+    FloatArray,
+    compose,
+    inverse,
+    relative,
+    transform_points,
+    wrap_angle,
+)
 
-__all__ = ["BeamGeometry", "VectorMap"]
-
-
-@dataclass(frozen=True)
-class BeamGeometry:
-    """The beams all scans of one map share."""
-
-    num_beams: int
-    angle_min: float
-    angle_increment: float
-    max_range: float
-
-    @property
-    def angles(self) -> FloatArray:
-        return self.angle_min + self.angle_increment * np.arange(self.num_beams)
-
-    @property
-    def full_circle(self) -> bool:
-        return abs(self.angle_increment) * self.num_beams >= 2 * np.pi - 1e-6
+__all__ = ["VectorMap"]
 
 
 class _Grow:

@@ -32,6 +32,9 @@ class View(Protocol):
 
     def grid(self, cells: FloatArray, resolution: float, origin: tuple[float, float]) -> None: ...
 
+    def hold(self) -> None:
+        """Keep showing what was logged until the user stops it (a served viewer)."""
+
     def close(self) -> None: ...
 
 
@@ -58,6 +61,9 @@ class NullView:
         pass
 
     def grid(self, cells, resolution, origin) -> None:
+        pass
+
+    def hold(self) -> None:
         pass
 
     def close(self) -> None:

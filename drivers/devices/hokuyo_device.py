@@ -22,6 +22,7 @@ import numpy as np
 from drivers import scip2_protocol as scip
 from drivers.devices.pty_device import Corruption, PtyDevice, ScanSource
 from drivers.scenario import SensorModel
+from vmp.types import BeamGeometry
 
 __all__ = ["URG04LX", "HokuyoDevice"]
 
@@ -56,8 +57,9 @@ class HokuyoDevice(PtyDevice):
         self.params = dict(URG04LX)
         if source is not None:
             want = self.params["AMAX"] - self.params["AMIN"] + 1
-            if source.sensor.beams != want:
-                raise ValueError(f"the scan source has {source.sensor.beams} beams; an "
+            if source.sensor.geometry.num_beams != want:
+                raise ValueError(f"the scan source has {source.sensor.geometry.num_beams} "
+                                 "beams; an "
                                  f"URG-04LX has {want} (use HokuyoDevice.sensor_model())")
             self.params["SCAN"] = round(source.sensor.rate_hz * 60)
         self._rx = bytearray()
@@ -72,9 +74,9 @@ class HokuyoDevice(PtyDevice):
         """The URG-04LX beam geometry: steps 44..725 of 1024 per turn, front at 384, 5.6 m."""
         p = URG04LX
         inc = 2 * math.pi / p["ARES"]
-        return SensorModel(beams=p["AMAX"] - p["AMIN"] + 1, angle_min=(p["AMIN"] - p["AFRT"]) * inc,
-                           angle_increment=inc, max_range=p["DMAX"] / 1000.0, range_noise=0.01,
-                           rate_hz=rate_hz, dropout=0.0)
+        beams = BeamGeometry(p["AMAX"] - p["AMIN"] + 1, (p["AMIN"] - p["AFRT"]) * inc, inc,
+                             p["DMAX"] / 1000.0)
+        return SensorModel(beams, range_noise=0.01, rate_hz=rate_hz, dropout=0.0)
 
     # -- device state ---------------------------------------------------------------------------
     def boot(self) -> None:

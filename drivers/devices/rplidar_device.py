@@ -20,6 +20,7 @@ import numpy as np
 from drivers import rplidar_protocol as rp
 from drivers.devices.pty_device import Corruption, PtyDevice, ScanSource
 from drivers.scenario import SensorModel
+from vmp.types import BeamGeometry
 
 __all__ = ["RplidarDevice"]
 
@@ -43,8 +44,9 @@ class RplidarDevice(PtyDevice):
                  health: tuple[int, int] = (0, 0), fault_survives_reset: bool = False,
                  jitter: float = 0.1, serial_number: bytes = bytes(range(16))) -> None:
         if source is not None:
-            expect = self.sensor_model(source.sensor.rate_hz, source.sensor.beams)
-            got = source.sensor
+            expect = self.sensor_model(source.sensor.rate_hz,
+                                       source.sensor.geometry.num_beams).geometry
+            got = source.sensor.geometry
             if not (math.isclose(got.angle_min, expect.angle_min)
                     and math.isclose(got.angle_increment, expect.angle_increment)):
                 raise ValueError("the scan source must use RplidarDevice.sensor_model geometry "
@@ -73,8 +75,8 @@ class RplidarDevice(PtyDevice):
     def sensor_model(rate_hz: float = 10.0, beams: int = 360) -> SensorModel:
         """The geometry the device ray-casts: the driver's beams, 12 m, 1 cm noise."""
         angle_min, inc = rp.beam_layout(beams)
-        return SensorModel(beams=beams, angle_min=angle_min, angle_increment=inc,
-                           max_range=12.0, range_noise=0.01, rate_hz=rate_hz, dropout=0.0)
+        return SensorModel(BeamGeometry(beams, angle_min, inc, 12.0), range_noise=0.01,
+                           rate_hz=rate_hz, dropout=0.0)
 
     # -- PtyDevice hooks ---------------------------------------------------------------------
     def boot(self) -> None:
@@ -139,7 +141,7 @@ class RplidarDevice(PtyDevice):
         elif cmd == rp.GET_HEALTH:
             self.send(rp.HEALTH_DESCRIPTOR + struct.pack("<BH", *self.health))
         elif cmd == rp.GET_SAMPLERATE:
-            per = 1e6 / (self.source.sensor.rate_hz * self.source.sensor.beams) \
+            per = 1e6 / (self.source.sensor.rate_hz * self.source.sensor.geometry.num_beams) \
                 if self.source is not None else 500.0
             self.send(rp.SAMPLERATE_DESCRIPTOR + struct.pack("<HH", round(per), round(per / 2)))
         elif cmd == rp.SET_MOTOR_PWM and len(payload) == 2:

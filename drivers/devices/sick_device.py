@@ -20,6 +20,7 @@ import numpy as np
 from drivers.devices.pty_device import Corruption, PtyDevice, ScanSource
 from drivers.scenario import SensorModel
 from drivers.sick_protocol import HOST, NAK, TelegramReceiver, encode_scan, reply
+from vmp.types import BeamGeometry
 
 __all__ = ["SickDevice"]
 
@@ -60,8 +61,8 @@ class SickDevice(PtyDevice):
         """
         n = angle * 100 // resolution + 1
         inc = math.radians(resolution / 100.0)
-        return SensorModel(beams=n, angle_min=-math.radians(angle / 2.0), angle_increment=inc,
-                           max_range=8.0, range_noise=0.01, rate_hz=rate_hz)
+        return SensorModel(BeamGeometry(n, -math.radians(angle / 2.0), inc, 8.0),
+                           range_noise=0.01, rate_hz=rate_hz)
 
     # -- power-up ---------------------------------------------------------------------------
     def boot(self) -> None:

@@ -1,0 +1,53 @@
+"""The milestone graph and its adjustment: sparse least squares, marginals."""
+
+import math
+
+import numpy as np
+import pytest
+
+from vmp.pose_graph import PoseGraph
+from vmp.types import compose, relative
+
+
+def test_loop_closure_spreads_the_drift_and_keeps_node_zero():
+    true = np.array([[0, 0, 0], [4, 0, math.pi / 2], [4, 4, math.pi], [0, 4, -math.pi / 2]],
+                    dtype=float)
+    g = PoseGraph()
+    drifted = [true[0]]
+    for a in range(3):
+        z = relative(true[a], true[a + 1]) + [0.0, 0.0, 0.02]  # a heading bias per edge
+        g.add(a, a + 1, z, np.diag([1e-4, 1e-4, 1e-4]), "path")
+        drifted.append(compose(drifted[-1], z))
+    g.add(3, 0, relative(true[3], true[0]), np.diag([1e-4, 1e-4, 1e-4]), "loop")
+    drifted = np.array(drifted)
+    fixed = g.optimize(drifted)
+    err_before = np.hypot(*(drifted[:, :2] - true[:, :2]).T).max()
+    err_after = np.hypot(*(fixed[:, :2] - true[:, :2]).T).max()
+    assert err_after < err_before / 3
+    np.testing.assert_array_equal(fixed[0], drifted[0])
+    assert g.chi2(fixed) < g.chi2(drifted) / 10
+    assert g.marginals is not None and np.all(g.marginals[0] == 0)
+
+
+@pytest.mark.parametrize("kind", ["path", "loop"])
+def test_edge_kinds(kind):
+    g = PoseGraph()
+    assert g.add(0, 1, np.zeros(3), np.eye(3), kind).kind == kind
+    with pytest.raises(ValueError):
+        g.add(0, 1, np.zeros(3), np.eye(3), "teleport")
+
+
+def test_marginals_equal_the_dense_inverse_blocks():
+    from scipy.sparse import csr_matrix
+    from scipy.sparse import random as sparse_random
+
+    from vmp.pose_graph import _marginals
+
+    n = 40
+    m = 3 * (n - 1)
+    J = sparse_random(200, m, density=0.05, random_state=2) + csr_matrix(np.eye(200, m))
+    cov = np.linalg.inv((J.T @ J).toarray() + np.eye(m) * 1e-9)
+    got = _marginals(J, n, block=7)  # blocks that do not divide the node count
+    idx = np.arange(n - 1)[:, None] * 3 + np.arange(3)
+    np.testing.assert_allclose(got[1:], cov[idx[:, :, None], idx[:, None, :]], atol=1e-10)
+    assert np.all(got[0] == 0)

@@ -1,0 +1,70 @@
+"""Odometry refined by scan registration: where the scans see, they win; where not, the wheels."""
+
+import math
+
+import numpy as np
+
+from vmp.config import MotionNoise, RegistrationConfig, ScanOdometryConfig
+from vmp.scan_odometry import ScanOdometry
+
+
+def odometry() -> ScanOdometry:
+    return ScanOdometry(ScanOdometryConfig(), RegistrationConfig(), MotionNoise())
+
+
+def _room_scan(x: float) -> np.ndarray:
+    """End points seen from (x, 0, 0) in a square room with walls 3 m from the origin."""
+    angles = np.linspace(-math.pi, math.pi, 360, endpoint=False)
+    r = np.full(angles.size, np.inf)
+    for normal in (0.0, math.pi / 2, math.pi, -math.pi / 2):
+        dist = 3.0 - x * math.cos(normal)
+        cos = np.cos(angles - normal)
+        with np.errstate(divide="ignore"):
+            r = np.minimum(r, np.where(cos > 1e-6, dist / cos, np.inf))
+    return np.stack([r * np.cos(angles), r * np.sin(angles)], axis=-1)
+
+
+def _corridor_scan(x: float) -> np.ndarray:
+    """End points seen from (x, 0, 0) between two endless walls 1 m to either side (the same
+    wherever the robot stands along them)."""
+    angles = np.linspace(-math.pi / 2, math.pi / 2, 181)
+    angles = angles[np.abs(np.sin(angles)) > 1.0 / 8.0]  # the walls within 8 m
+    r = 1.0 / np.abs(np.sin(angles))
+    return np.stack([r * np.cos(angles), r * np.sin(angles)], axis=-1)
+
+
+def test_registration_corrects_wheels_that_err():
+    odo = odometry()
+    odo.increment(_room_scan(0.0), None)
+    rng = np.random.default_rng(1)
+    x = 0.0
+    wheel_err, fused_err = [], []
+    for _ in range(10):  # 0.1 m a step; the wheels err by about 1 cm and 0.6 degree
+        x += 0.1
+        wheel = np.array([0.1 + rng.normal(0, 0.01), rng.normal(0, 0.01), rng.normal(0, 0.01)])
+        u, q = odo.increment(_room_scan(x), wheel)
+        wheel_err.append(np.hypot(wheel[0] - 0.1, wheel[1]))
+        fused_err.append(np.hypot(u[0] - 0.1, u[1]))
+        assert np.sqrt(q[0, 0]) < 0.016  # surer than the wheels alone (1.6 cm per 0.1 m)
+    assert odo.refined == 10 and odo.fallbacks == 0
+    assert np.mean(fused_err) < 0.5 * np.mean(wheel_err), (fused_err, wheel_err)
+
+
+def test_along_a_corridor_the_wheels_decide_the_axis():
+    odo = odometry()
+    odo.increment(_corridor_scan(0.0), None)
+    u, q = odo.increment(_corridor_scan(0.1), np.array([0.13, 0.02, 0.0]))
+    assert abs(u[0] - 0.13) < 1e-3  # along the walls: nothing to see, the wheels stand
+    assert abs(u[1]) < 3e-3  # across them the scans put the robot back in the middle
+    assert q[0, 0] > 10 * q[1, 1]
+
+
+def test_the_wheels_distance_scale_is_learned():
+    odo = odometry()
+    odo.increment(_room_scan(0.0), None)
+    x = 0.0
+    for k in range(60):  # the wheels read 5 % long; the robot drives to and fro in the room
+        step = 0.05 if (k // 20) % 2 == 0 else -0.05
+        x += step
+        odo.increment(_room_scan(x), np.array([1.05 * step, 0.0, 0.0]))
+    assert abs(odo.scale - 1 / 1.05) < 0.01

@@ -1,0 +1,241 @@
+"""The back end: the milestone graph, its edges and its adjustment.
+
+Milestones are recorded along the path (the first where the run starts); consecutive ones are
+joined by a path edge, measured by registering their stored scans. When the robot comes back
+to a stored milestone nearer than its anchor, the segment is handed over to it and a loop edge
+joins the two anchors; when the anchor itself stands at the place seen long ago (recorded there
+on this visit) a clear match closes the loop in place, without a handover. A loop edge that
+disagrees with the graph has it adjusted (sparse least squares, :mod:`vmp.pose_graph`); the
+milestones move and their segments with them. Every milestone keeps its covariance in the map
+frame, which gates how far a return to it may disagree with the prediction.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable
+
+import numpy as np
+
+from milestones.manager import MilestoneManager
+from vmp.config import MappingConfig
+from vmp.fusion import motion_covariance
+from vmp.matcher import Kind, Match, Seed, pins
+from vmp.pose_graph import Edge, PoseGraph
+from vmp.registration import Reference, Registration, fits, register
+from vmp.types import (
+    FloatArray,
+    ScanFrame,
+    compose,
+    compose_covariance,
+    inverse,
+    inverse_covariance,
+    relative,
+)
+from vmp.view import View
+
+__all__ = ["BackEnd", "fuse"]
+
+# Added to every milestone's covariance from the graph's marginals (m^2, m^2, rad^2).
+MARGINAL_FLOOR = np.diag([1e-6, 1e-6, 1e-8])
+
+
+def fuse(a: FloatArray, cov_a: FloatArray, b: FloatArray, cov_b: FloatArray
+         ) -> tuple[FloatArray, FloatArray]:
+    """Two estimates of one relative pose combined by their information."""
+    info_a, info_b = np.linalg.inv(cov_a), np.linalg.inv(cov_b)
+    cov = np.linalg.inv(info_a + info_b)
+    d = np.asarray(a, dtype=np.float64) - b
+    d[2] = (d[2] + np.pi) % (2 * np.pi) - np.pi
+    return b + cov @ (info_a @ d), 0.5 * (cov + cov.T)
+
+
+def _via(rel_a: FloatArray, cov_a: FloatArray, reg: Registration
+         ) -> tuple[FloatArray, FloatArray]:
+    """Milestone ``b`` in the anchor's frame through the robot: the robot in the anchor's frame
+    (``rel_a``, ``cov_a``) and in ``b``'s (a registration, in ``b``'s frame)."""
+    to_b = inverse(reg.pose)
+    return compose(rel_a, to_b), compose_covariance(
+        rel_a, cov_a, to_b, inverse_covariance(reg.pose, reg.covariance))
+
+
+class BackEnd:
+    """The milestones, the anchor of the open segment, the graph and its adjustment."""
+
+    def __init__(self, config: MappingConfig, milestones: MilestoneManager,
+                 reference: Callable[[int], Reference], view: View,
+                 stats: Counter[str]) -> None:
+        self.config = config
+        self.milestones = milestones
+        self.reference = reference  # a milestone's stored scan, ready to register against
+        self.view = view
+        self.stats = stats
+        self.graph = PoseGraph()
+        self.anchor: int | None = None
+        # This scan's accepted registration against the anchor, if any.
+        self.anchor_registration: Registration | None = None
+        self._abs_cov: list[FloatArray] = []  # per milestone: covariance in the map frame
+        self._closed: set[tuple[int, int]] = set()  # loops closed without a handover
+
+    # ---- what the matcher needs to know ---------------------------------------------------
+
+    def milestone_cov(self, mid: int) -> FloatArray:
+        """A milestone's covariance in the map frame."""
+        return self._abs_cov[mid]
+
+    def cov_via_anchor(self, pose: FloatArray) -> FloatArray:
+        """How uncertain the robot at ``pose`` is in the map frame through its anchor's chain."""
+        rel = relative(self.milestones.pose(self.anchor), pose)
+        return self._compound_cov(self.anchor, rel, np.zeros((3, 3)))
+
+    # ---- milestones and edges ------------------------------------------------------------
+
+    def begin(self, pose: FloatArray, cov: FloatArray, frame: ScanFrame) -> int:
+        """Record the first milestone where the run starts; it anchors the first segment."""
+        first = self.milestones.add(pose, frame.ranges, frame.angle_min,
+                                    frame.angle_increment, frame.max_range, frame.stamp)
+        self._abs_cov.append(cov.copy())
+        self.anchor = first
+        return first
+
+    def record(self, pose: FloatArray, frame: ScanFrame) -> int | None:
+        """Record a milestone here if one is due and the place is distinctive; it becomes the
+        anchor, joined to the last by a path edge. Returns its id, or None."""
+        new = self.milestones.consider(pose, frame.ranges, frame.angle_min,
+                                       frame.angle_increment, frame.max_range, frame.stamp)
+        if new is None:
+            return None
+        self.stats["milestones recorded"] += 1
+        rel, cov = self._milestone_edge(self.anchor, new, self.robot_in_anchor(pose))
+        self.graph.add(self.anchor, new, rel, cov, "path")
+        self._abs_cov.append(self._compound_cov(self.anchor, rel, cov))
+        self.view.milestone(new, self.milestones.pose(new))
+        self.anchor = new
+        return new
+
+    def robot_in_anchor(self, pose: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The robot's pose in the anchor's frame and its covariance.
+
+        The motion since the anchor bounds the uncertainty (odometry noise over that distance);
+        this scan's registration against the anchor narrows it where it sees.
+        """
+        rel = relative(self.milestones.pose(self.anchor), pose)
+        cov = motion_covariance(rel, self.config.motion)
+        if self.anchor_registration is not None:
+            return rel, fuse(rel, self.anchor_registration.covariance, rel, cov)[1]
+        return rel, cov
+
+    def _milestone_edge(self, a: int, b: int, fallback: tuple[FloatArray, FloatArray]
+                        ) -> tuple[FloatArray, FloatArray]:
+        """Milestone ``b`` in ``a``'s frame by registering their stored scans.
+
+        ``fallback`` (pose and covariance, also the starting guess) stands when the two scans
+        do not register well.
+        """
+        guess, cov = fallback
+        reg = register(self.reference(a), self.reference(b).points, guess)
+        if fits(reg, self.config.registration):
+            self.stats["milestone edges registered"] += 1
+            return fuse(reg.pose, reg.covariance, guess, cov)
+        self.stats["milestone edges from the filter"] += 1
+        return guess, cov
+
+    def _compound_cov(self, anchor: int, rel: FloatArray, cov: FloatArray) -> FloatArray:
+        """Map-frame covariance of ``anchor (+) rel``, given the edge covariance ``cov``."""
+        return compose_covariance(self.milestones.pose(anchor), self._abs_cov[anchor], rel, cov)
+
+    # ---- returns to stored milestones ------------------------------------------------------
+
+    def handover_target(self, matches: list[Match], pose: FloatArray) -> Match | None:
+        """The accepted signature match of a stored milestone nearer than the anchor (the
+        nearest), to hand the segment over to; None when there is none."""
+        d_anchor = float(np.hypot(*(self.milestones.pose(self.anchor)[:2] - pose[:2])))
+        best = None
+        for m in matches:
+            if not m.accepted or m.kind is not Kind.SIGNATURE:
+                continue
+            if m.seed is not Seed.PREDICTION and pins(m.registration):
+                # Registered from the node, not from the prediction (which, after a long way
+                # round, may be metres off): how far the match puts the robot decides.
+                d = float(np.hypot(*m.registration.pose[:2]))
+            else:
+                d = float(np.hypot(*(self.milestones.pose(m.milestone)[:2] - pose[:2])))
+            if d + self.config.loops.switch_margin < d_anchor and (best is None or d < best[1]):
+                best = (m, d)
+        return None if best is None else best[0]
+
+    def handover_edge(self, m: Match, pose: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The edge from the anchor to the milestone of match ``m``, the robot at ``pose``."""
+        rel_a, cov_a = self.robot_in_anchor(pose)
+        return self._milestone_edge(self.anchor, m.milestone, _via(rel_a, cov_a, m.registration))
+
+    def hand_over(self, target: int, z: FloatArray, cov: FloatArray) -> Edge:
+        """Join the anchor to ``target`` by an edge (a path edge to the next milestone, else a
+        loop edge) and make ``target`` the anchor."""
+        sequential = abs(target - self.anchor) == 1
+        edge = self.graph.add(self.anchor, target, z, cov, "path" if sequential else "loop")
+        self.stats["anchor switches"] += 1
+        self.anchor = target
+        if edge.kind == "loop":
+            self.stats["loop edges"] += 1
+        return edge
+
+    def close_in_place(self, matches: list[Match], pose: FloatArray) -> Edge | None:
+        """A loop to a milestone no nearer than the anchor: an edge between the two, no
+        handover; the edge, or None.
+
+        The anchor may itself stand at the place seen long ago (recorded there on this visit,
+        or on an earlier one whose loop was never closed), so no handover comes; a match that
+        pins the pose then still closes the loop (once per pair of milestones). A match
+        registered from the prediction needs a clear place (``retry_max_ratio``), as one
+        registered from the node does: the Intel run passed such places, one after another,
+        without closing a loop whenever the robot came back facing another way and recorded a
+        milestone of its own there.
+        """
+        c = self.config
+        for m in matches:
+            if (not m.accepted or m.kind is not Kind.SIGNATURE
+                    or (m.seed is Seed.PREDICTION and m.ratio > c.matching.retry_max_ratio)
+                    or abs(m.milestone - self.anchor) <= c.loops.separation
+                    or (self.anchor, m.milestone) in self._closed
+                    or not pins(m.registration)):
+                continue
+            z, cov = self.handover_edge(m, pose)
+            edge = self.graph.add(self.anchor, m.milestone, z, cov, "loop")
+            self._closed.add((self.anchor, m.milestone))
+            self.stats["loop edges"] += 1
+            self.stats["loop edges in place"] += 1
+            return edge
+        return None
+
+    def disagrees(self, edge: Edge) -> bool:
+        """Whether the graph as it stands disagrees with a new edge enough to adjust it."""
+        e = self.graph.error(self.milestones.poses, edge)
+        return float(e @ edge.information @ e) > self.config.loops.adjust_chi2
+
+    def adjust(self) -> FloatArray:
+        """Adjust the milestone graph; the milestones move. Returns their new poses."""
+        t = time.perf_counter()
+        poses = self.graph.optimize(self.milestones.poses)
+        self.milestones.set_poses(poses)
+        if self.graph.marginals is not None:  # the loop has shrunk every milestone's doubt
+            self._abs_cov = [c + MARGINAL_FLOOR for c in self.graph.marginals]
+        self.stats["graph adjustments"] += 1
+        self.stats["graph adjustment seconds"] += time.perf_counter() - t
+        self.view.anchors_moved(self.milestones.ids, poses)
+        return poses
+
+    def finish(self) -> None:
+        """Adjust the graph a last time (when loops were closed)."""
+        if self.stats["loop edges"]:
+            poses = self.graph.optimize(self.milestones.poses)
+            self.milestones.set_poses(poses)
+            self.view.anchors_moved(self.milestones.ids, poses)
+
+    def poses_by_id(self) -> FloatArray:
+        """Milestone poses indexed by id."""
+        ids = self.milestones.ids
+        out = np.zeros((int(ids.max()) + 1 if len(ids) else 0, 3))
+        out[ids] = self.milestones.poses
+        return out

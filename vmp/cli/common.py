@@ -1,0 +1,100 @@
+"""What ``vmp map`` and ``vmp live`` share: run options, the view, mapping and writing results."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from pathlib import Path
+
+from vmp.cli.args import positive_float
+from vmp.config import MappingConfig, load_config
+from vmp.errors import InputError
+from vmp.progress import Progress
+from vmp.results import Result, format_metrics, link_latest
+from vmp.run import MappingRun, stop_on_signals
+from vmp.source import Source
+
+__all__ = ["add_run_options", "map_and_write", "mapping_config", "open_view"]
+
+
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    """Options of every command that maps: where results go, configuration, views."""
+    p.add_argument("--out", type=Path, default=Path("results"),
+                   help="folder that receives the dated results folder (default: results)")
+    p.add_argument("--config", type=Path, help="mapping configuration YAML (default: "
+                   "built-in; every result holds the one it used as config.yaml)")
+    p.add_argument("--resolution", type=positive_float, default=0.05,
+                   help="occupancy grid cell size in metres (default: 0.05)")
+    p.add_argument("--rerun", metavar="TARGET",
+                   help="watch in Rerun: a .rrd file to save, 'spawn' (native viewer) or "
+                   "'serve' (web viewer on localhost)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress, no table")
+
+
+def mapping_config(path: Path | None) -> MappingConfig:
+    return load_config(path) if path else MappingConfig()
+
+
+def open_view(target: str | None, quiet: bool):
+    """The Rerun view asked for with ``--rerun``, or None."""
+    if not target:
+        return None
+    from viz.rerun_view import open_rerun
+
+    try:
+        view, where = open_rerun(target)
+    except ValueError as exc:
+        raise InputError(str(exc)) from exc
+    if not quiet:
+        print(f"rerun: {where}")
+    return view
+
+
+def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespace,
+                  out: Path, label: str, scans: int | None = None) -> tuple[Result, int]:
+    """Map ``source`` into the results folder ``out`` and print what happened.
+
+    Ctrl-C or SIGTERM while mapping end the run: what was mapped so far is finished, written
+    and reported, and the exit code (128 + the signal's number) says it was interrupted.
+    Returns the result and the exit code.
+    """
+    view = open_view(args.rerun, args.quiet)
+    total = source.length if scans is None or source.length is None else min(scans,
+                                                                              source.length)
+    progress = Progress(total or scans, f"mapping {source.name}",
+                        enabled=False if args.quiet else None)
+    run = MappingRun(source, config, view, scans=scans, progress=progress, label=label)
+    try:
+        result = run.run()
+    except BaseException:
+        if out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # nothing was mapped: no empty results folder
+        raise
+    late: list[str] = []
+    with stop_on_signals(late.append):  # a signal now waits until everything is written
+        metrics = result.write(out, args.resolution)
+        link_latest(out)
+        if view is not None:
+            grid = result.grid(args.resolution)
+            view.grid(grid.cells, grid.resolution, grid.origin)
+    summary = result.report.summary(label)
+    if summary and not args.quiet:
+        print(summary, file=sys.stderr)
+    if not args.quiet:
+        print(format_metrics(metrics))
+        state = f"interrupted by {result.interrupted}; " if result.interrupted else ""
+        print(f"\n{state}results in {out} (also {args.out / 'latest'}):")
+        print(f"  trajectory  {out / 'trajectory.tum'}")
+        print(f"  map         {out / 'map.vmpmap'}")
+        print(f"  grid        {out / 'grid.yaml'} (+ grid.pgm, grid.png, grid.npy)")
+        print(f"  contours    {out / 'contours.geojson'};  graph {out / 'graph.json'}")
+    elif result.interrupted:
+        print(f"vmp: interrupted by {result.interrupted} after {result.scans} scans; "
+              f"results in {out}", file=sys.stderr)
+    if view is not None:
+        if args.rerun == "serve" and not result.interrupted:
+            view.hold()
+        view.close()
+    ended = result.interrupted or (late[0] if late else None)
+    return result, 128 + signal.Signals[ended].value if ended else 0

@@ -1,0 +1,67 @@
+"""The front end: where the robot is between corrections.
+
+The filter moves by the wheel odometry increment since the last scan, refined by registering
+the scan against a recent keyframe (:mod:`vmp.scan_odometry`). Odometry alone is tracked beside
+it, for comparison; a source whose odometry pauses (scans without it) resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from vmp.config import MappingConfig
+from vmp.fusion import PoseFilter
+from vmp.scan_odometry import ScanOdometry
+from vmp.types import FloatArray, ScanFrame, compose, inverse, relative, rotate_covariance
+
+__all__ = ["FrontEnd"]
+
+# How well the first pose is known (m, m, rad): it defines the map frame.
+INITIAL_SIGMA = (0.01, 0.01, math.radians(0.5))
+
+
+class FrontEnd:
+    """The filter's prediction from odometry and scan registration."""
+
+    def __init__(self, config: MappingConfig) -> None:
+        self.config = config
+        self.scan_odometry = ScanOdometry(config.scan_odometry, config.registration,
+                                          config.motion)
+        self.filter: PoseFilter | None = None
+        self.odom_pose = np.zeros(3)  # where odometry alone puts the robot
+        self._odom_offset = np.zeros(3)  # odometry frame -> that pose, after any gaps
+        self._last_odom: FloatArray | None = None  # the odometry of the scan before
+        # Motion noise since the last anchor correction: how far a correction may move.
+        self.motion_since_fix = np.zeros((3, 3))
+
+    def predict(self, frame: ScanFrame) -> None:
+        """Move the filter to this scan (the first scan starts it at its odometry)."""
+        odom = frame.odom
+        if self.filter is None:
+            start = odom if odom is not None else np.zeros(3)
+            self.filter = PoseFilter(start, np.diag(np.square(INITIAL_SIGMA)),
+                                     self.config.motion)
+            self.odom_pose = start.copy()
+        else:
+            # The wheel increment is known when this scan and the one before carry odometry.
+            wheel = (relative(self._last_odom, odom)
+                     if odom is not None and self._last_odom is not None else None)
+            if odom is not None:
+                if wheel is None:  # odometry resumes: continue from where it stopped
+                    self._odom_offset = compose(self.odom_pose, inverse(odom))
+                self.odom_pose = compose(self._odom_offset, odom)
+            u, q = self.scan_odometry.increment(frame.points(), wheel)
+            self.filter.predict(u, q)
+            self.motion_since_fix = self.motion_since_fix + rotate_covariance(
+                q, self.filter.pose[2])
+        self._last_odom = odom
+
+    @property
+    def pose(self) -> FloatArray:
+        return self.filter.pose
+
+    @property
+    def covariance(self) -> FloatArray:
+        return self.filter.covariance

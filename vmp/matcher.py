@@ -1,0 +1,261 @@
+"""Matching a live scan against stored milestones, and the verdict on each match.
+
+Every scan is registered against the milestone its segment is anchored at, and against the
+stored milestones whose signatures match it within the filter's gate, where a match could
+change something (a milestone nearer than the anchor, or one far back along the path). A
+match is rejected on a poor fit, an ambiguous signature (a rival place scores nearly as well)
+or a failed Mahalanobis gate; a rejected match changes nothing. A loop candidate that ICP
+cannot register from the prediction, whose drift after a long way round may be metres, is
+registered from its node, or found by an exhaustive correlative search around the node
+(:mod:`vmp.correlative`) and accepted only on a clear peak and a close ICP fit.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from milestones.manager import MilestoneManager
+from vmp.config import MappingConfig
+from vmp.correlative import CorrelativeConfig, LikelihoodGrid, correlative_search, grid_for
+from vmp.fusion import CHI2_3DOF_99, pose_residual
+from vmp.registration import MIN_POINTS, Reference, Registration, fits, register
+from vmp.types import BeamGeometry, FloatArray, ScanFrame, compose, relative, rotate_covariance
+
+__all__ = ["Doubt", "Kind", "Match", "Matcher", "Reason", "Seed", "pins"]
+
+# A registration this certain in every direction pins the pose (m, rad).
+PINNED_SIGMA_XY = 0.1
+PINNED_SIGMA_THETA = 0.05
+# A heading this uncertain (rad) is replaced by the signature's heading offset as ICP's start.
+UNCERTAIN_HEADING = math.radians(10.0)
+# A window search's verdict: the runner-up's share of the peak score above which the place is
+# ambiguous, the least mean likelihood of the live points at the peak, and how far its ICP
+# refinement may move from the peak (m, rad).
+SEARCH_MAX_RATIO = 0.85
+SEARCH_MIN_SCORE = 0.4
+SEARCH_MAX_SHIFT = 0.2
+SEARCH_MAX_TURN = math.radians(4.0)
+# The drift covariances compounded along hundreds of path edges are optimistic (the odometry's
+# errors are not white); a match registered without the prediction (from the node or by the
+# search) and pinned by its fit is gated on drift covariances inflated by this factor.
+LOOP_DRIFT_INFLATION = 2.0
+
+
+class Kind(Enum):
+    """Why a milestone was matched: the segment's anchor, or a signature match."""
+
+    ANCHOR = "anchor"
+    SIGNATURE = "signature"
+
+
+class Seed(Enum):
+    """Where the registration started: the prediction, the milestone's node, a window search."""
+
+    PREDICTION = "prediction"
+    NODE = "node"
+    SEARCH = "search"
+
+
+class Reason(Enum):
+    """Why a match was rejected."""
+
+    POOR_FIT = "poor fit"
+    AMBIGUOUS = "ambiguous"
+    GATE = "gate"
+
+
+@dataclass(frozen=True)
+class Match:
+    """A milestone the live scan was registered against, and the verdict."""
+
+    milestone: int
+    kind: Kind
+    registration: Registration
+    z: FloatArray  # the pose measurement in the map frame
+    R: FloatArray  # its covariance
+    mahalanobis2: float
+    ratio: float  # signature score / best rival's (0 for the anchor)
+    score: float  # the signature score (nan for the anchor)
+    reason: Reason | None  # why it was rejected; None: accepted
+    seed: Seed = Seed.PREDICTION
+
+    @property
+    def accepted(self) -> bool:
+        return self.reason is None
+
+
+def pins(reg: Registration) -> bool:
+    """Whether a registration fixes the pose in every direction (no corridor axis) by lines
+    alone."""
+    if reg.by_corners:
+        return False
+    sd = np.sqrt(np.linalg.eigvalsh(reg.covariance[:2, :2]))
+    return bool(sd.max() <= PINNED_SIGMA_XY and math.sqrt(reg.covariance[2, 2])
+                <= PINNED_SIGMA_THETA)
+
+
+@dataclass(frozen=True)
+class Doubt:
+    """How far a match may disagree with the filter's prediction, besides the filter's own
+    covariance and the registration's."""
+
+    anchor_motion: FloatArray  # motion noise since the last anchor correction
+    via_anchor: FloatArray  # the robot's map-frame covariance through its anchor's chain
+    milestone: Callable[[int], FloatArray]  # a stored milestone's map-frame covariance
+
+
+class Matcher:
+    """Registers live scans against stored milestones and judges each match."""
+
+    def __init__(self, config: MappingConfig, geometry: BeamGeometry,
+                 milestones: MilestoneManager, stats: Counter[str]) -> None:
+        self.config = config
+        self.geometry = geometry
+        self.milestones = milestones
+        self.stats = stats
+        self.search = CorrelativeConfig()
+        self._refs: dict[int, Reference] = {}
+        self._grids: dict[int, LikelihoodGrid] = {}  # window-search grids of milestones
+        self._searched: dict[int, int] = {}  # milestone -> scan index of its last search
+
+    def reference(self, mid: int) -> Reference:
+        """The registration reference of a milestone's stored scan (built once)."""
+        ref = self._refs.get(mid)
+        if ref is None:
+            r = self.milestones.scan(mid).astype(np.float64)
+            ok = np.isfinite(r)
+            a = self.geometry.angles[ok]
+            pts = np.stack([r[ok] * np.cos(a), r[ok] * np.sin(a)], axis=-1)
+            ref = self._refs[mid] = Reference(pts)
+        return ref
+
+    def match(self, frame: ScanFrame, pose: FloatArray, cov: FloatArray, anchor: int,
+              doubt: Doubt, scan: int) -> list[Match]:
+        """The matches of one scan: its anchor's, then its signature candidates'.
+
+        ``pose`` and ``cov`` are the filter's; ``scan`` is the scan's index (window searches
+        are spaced in scans).
+        """
+        points = frame.points()
+        if len(points) < MIN_POINTS:
+            self.stats["scans too sparse to match"] += 1
+            return []
+        targets = [(anchor, Kind.ANCHOR, 0.0, None, math.nan)]
+        targets += self._candidates(frame, pose, anchor, cov + doubt.via_anchor)
+        return [self._register(mid, kind, ratio, offset, score, points, pose, cov, anchor,
+                               doubt, scan)
+                for mid, kind, ratio, offset, score in targets]
+
+    def _candidates(self, frame: ScanFrame, pose: FloatArray, anchor: int,
+                    gate_cov: FloatArray) -> list[tuple[int, Kind, float, float, float]]:
+        """Signature matches worth registering: where a match could change something, a
+        milestone nearer than the anchor (a handover) or one far back along the path (a loop)."""
+        c = self.config
+        d_anchor = float(np.hypot(*(self.milestones.pose(anchor)[:2] - pose[:2])))
+        out: list[tuple[int, Kind, float, float, float]] = []
+        for cand in self.milestones.query(frame.ranges, frame.angle_min, frame.angle_increment,
+                                          frame.max_range, predicted_pose=pose,
+                                          covariance=gate_cov,
+                                          max_candidates=c.matching.candidates + 1):
+            if cand.id == anchor or len(out) >= c.matching.candidates:
+                continue
+            d_cand = float(np.hypot(*(cand.pose[:2] - pose[:2])))
+            near_anchor = abs(cand.id - anchor) <= c.loops.separation
+            if near_anchor and d_cand + c.loops.switch_margin >= d_anchor:
+                continue
+            out.append((cand.id, Kind.SIGNATURE, cand.ratio, cand.heading_offset, cand.score))
+        return out
+
+    def _register(self, mid: int, kind: Kind, ratio: float, offset: float | None,
+                  score: float, points: FloatArray, x: FloatArray, P: FloatArray,
+                  anchor: int, doubt: Doubt, scan: int) -> Match:
+        c = self.config
+        ms_pose = self.milestones.pose(mid)
+        guess = relative(ms_pose, x)
+        if offset is not None and P[2, 2] > UNCERTAIN_HEADING**2:
+            guess[2] = offset  # an uncertain heading: trust the signature's instead
+        reg = register(self.reference(mid), points, guess)
+        seed = Seed.PREDICTION
+        if kind is Kind.SIGNATURE and offset is not None and not fits(reg, c.registration):
+            reg, seed = self._from_node(mid, points, offset, ratio, anchor, scan, reg)
+        z = compose(ms_pose, reg.pose)
+        R = rotate_covariance(reg.covariance, ms_pose[2])
+        if kind is Kind.ANCHOR:
+            # Only the motion since the last anchor correction may separate prediction and
+            # match, so a registration that drags the robot elsewhere (say, towards a person
+            # walking along with it) fails the gate.
+            spread = R + doubt.anchor_motion
+        else:
+            # A return to an old milestone disagrees by the drift of both chains since.
+            loop_drift = P + doubt.via_anchor + doubt.milestone(mid)
+            if seed is not Seed.PREDICTION and pins(reg):
+                loop_drift = loop_drift * LOOP_DRIFT_INFLATION
+            spread = R + loop_drift
+        y = pose_residual(z, x)
+        d2 = float(y @ np.linalg.solve(spread, y))
+        reason = None
+        if not fits(reg, c.registration):
+            reason = Reason.POOR_FIT
+        elif kind is Kind.SIGNATURE and ratio > c.matching.max_ratio:
+            reason = Reason.AMBIGUOUS
+        elif d2 > CHI2_3DOF_99:
+            reason = Reason.GATE
+        return Match(mid, kind, reg, z, R, d2, ratio, score, reason, seed)
+
+    def _from_node(self, mid: int, points: FloatArray, offset: float, ratio: float,
+                   anchor: int, scan: int, reg: Registration) -> tuple[Registration, Seed]:
+        """A signature match ICP could not register from the prediction, which may have
+        drifted far (a loop after a long way round): a matching signature says the robot
+        stands near the node, turned by the offset. Returns the registration to judge."""
+        c = self.config
+        retry = register(self.reference(mid), points, np.array([0.0, 0.0, offset]))
+        # Only a clear place and a close fit: this guess ignores the prediction.
+        if (fits(retry, c.registration) and ratio <= c.matching.retry_max_ratio
+                and retry.inliers >= c.matching.retry_min_inliers):
+            return retry, Seed.NODE
+        if self._search_due(mid, anchor, scan):
+            found = self._window_search(mid, points, offset, scan)
+            if found is not None:
+                return found, Seed.SEARCH
+        return reg, Seed.PREDICTION
+
+    def _search_due(self, mid: int, anchor: int, scan: int) -> bool:
+        """Whether a window search against milestone ``mid`` may run for this scan."""
+        if abs(mid - anchor) <= self.config.loops.separation:
+            return False
+        last = self._searched.get(mid)
+        return last is None or scan - last >= self.config.loops.search_every
+
+    def _window_search(self, mid: int, points: FloatArray, offset: float,
+                       scan: int) -> Registration | None:
+        """Register ``points`` on milestone ``mid`` by a window search around its node.
+
+        The window is centred on the node, turned by the signature's heading offset; the peak
+        must stand clear of every pose a separation away, and its ICP refinement must fit
+        well and stay near the peak. Returns the refinement, or None.
+        """
+        self._searched[mid] = scan
+        self.stats["loop searches"] += 1
+        grid = self._grids.get(mid)
+        if grid is None:
+            grid = self._grids[mid] = grid_for(self.reference(mid).points, self.search)
+        found = correlative_search(grid, points, np.array([0.0, 0.0, offset]), self.search)
+        if found.score < SEARCH_MIN_SCORE or found.ratio > SEARCH_MAX_RATIO:
+            self.stats["loop searches without a clear peak"] += 1
+            return None
+        reg = register(self.reference(mid), points, found.pose)
+        shift = reg.pose - found.pose
+        turn = abs((shift[2] + math.pi) % (2 * math.pi) - math.pi)
+        if (not fits(reg, self.config.registration)
+                or math.hypot(shift[0], shift[1]) > SEARCH_MAX_SHIFT
+                or turn > SEARCH_MAX_TURN):
+            self.stats["loop searches with a poor refinement"] += 1
+            return None
+        self.stats["loop searches found"] += 1
+        return reg
