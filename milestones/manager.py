@@ -240,13 +240,16 @@ class MilestoneManager:
 
     # ---- recording -------------------------------------------------------------------------
 
-    def due(self, pose: FloatArray) -> bool:
-        """True when the pose is away from every stored milestone by distance or turn."""
+    def due(self, pose: FloatArray, among: ArrayLike | None = None) -> bool:
+        """True when the pose is away by distance or turn from every stored milestone (or
+        every one of the ids ``among``)."""
         if len(self) == 0:
             return True
         p = np.asarray(pose, dtype=np.float64)
-        d = np.hypot(*(self.poses[:, :2] - p[:2]).T)
-        turn = np.abs((self.poses[:, 2] - p[2] + np.pi) % (2 * np.pi) - np.pi)
+        poses = self.poses if among is None else self.poses[
+            np.searchsorted(self.ids, np.asarray(among, dtype=np.int64))]
+        d = np.hypot(*(poses[:, :2] - p[:2]).T)
+        turn = np.abs((poses[:, 2] - p[2] + np.pi) % (2 * np.pi) - np.pi)
         near = (d < self.config.record_distance) & (turn < self.config.record_turn)
         return not near.any()
 
@@ -271,9 +274,11 @@ class MilestoneManager:
         return None
 
     def consider(self, pose: FloatArray, ranges: NDArray, angle_min: float,
-                 angle_increment: float, max_range: float, stamp: float = 0.0) -> int | None:
-        """Record a milestone here if one is due and the place is distinctive; its id or None."""
-        if not self.due(pose):
+                 angle_increment: float, max_range: float, stamp: float = 0.0,
+                 among: ArrayLike | None = None) -> int | None:
+        """Record a milestone here if one is due (see :meth:`due`) and the place is
+        distinctive; its id or None."""
+        if not self.due(pose, among):
             return None
         if not self._has_returns(ranges, max_range):
             self.skipped.few_returns += 1
@@ -405,6 +410,23 @@ class MilestoneManager:
                 mahalanobis=float(gate_d2[rows[i]]),
             ))
         return out
+
+    def rank(self, ranges: NDArray, angle_min: float, angle_increment: float,
+             max_range: float, ids: ArrayLike) -> list[tuple[int, float, float]]:
+        """The milestones ``ids`` ordered by how well the live scan's signature matches
+        theirs, best first: (id, score, heading offset in rad); no pose is consulted."""
+        ids = np.asarray(ids, dtype=np.int64)
+        if len(ids) == 0 or not self._has_returns(ranges, max_range):
+            return []
+        sig = self.signature(ranges, angle_min, angle_increment, max_range)
+        rows = np.searchsorted(self.ids, ids)
+        stored = self.method.encode(self._sigs.view[rows].astype(np.float64))
+        m = self.method.search(sig, stored, max_shift=self._max_shift(),
+                               min_overlap=MIN_OVERLAP, circular=self.circular)
+        scores = np.maximum(m.score, 0.0)
+        offsets = (m.refined * self.step + np.pi) % (2 * np.pi) - np.pi
+        order = np.argsort(scores, kind="stable")
+        return [(int(ids[k]), float(scores[k]), float(offsets[k])) for k in order]
 
     # ---- for the store ---------------------------------------------------------------------
 

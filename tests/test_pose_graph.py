@@ -51,3 +51,48 @@ def test_marginals_equal_the_dense_inverse_blocks():
     idx = np.arange(n - 1)[:, None] * 3 + np.arange(3)
     np.testing.assert_allclose(got[1:], cov[idx[:, :, None], idx[:, None, :]], atol=1e-10)
     assert np.all(got[0] == 0)
+
+
+def _ring(n: int = 40, radius: float = 10.0) -> np.ndarray:
+    a = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
+    return np.column_stack([radius * np.cos(a), radius * np.sin(a), a + math.pi / 2])
+
+
+def test_a_wrong_loop_edge_loses_its_pull():
+    """The answer with a wrong loop edge added is the answer without it."""
+    true = _ring()
+    rng = np.random.default_rng(3)
+    g = PoseGraph()
+    drifted = [true[0]]
+    for a in range(len(true) - 1):  # odometry as noisy as its covariance says
+        z = relative(true[a], true[a + 1]) + rng.normal(0, math.sqrt(1e-3), 3)
+        g.add(a, a + 1, z, np.diag([1e-3, 1e-3, 1e-3]), "path")
+        drifted.append(compose(drifted[-1], z))
+    for a, b in ((39, 0), (30, 2), (20, 35)):  # true loops
+        g.add(a, b, relative(true[a], true[b]), np.diag([1e-4, 1e-4, 1e-4]), "loop")
+    drifted = np.array(drifted)
+    right = g.optimize(drifted)
+    assert (g.weights > 0.9).all()  # nothing to discount
+    g.add(10, 25, np.array([0.5, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-4]), "loop")  # wrong
+    robust = g.optimize(drifted)
+    assert np.hypot(*(robust[:, :2] - right[:, :2]).T).max() < 0.05
+    assert g.weights[-1] < 0.01 and (g.weights[:-1] > 0.9).all(), g.weights[-4:]
+    assert (g.weights[:-4] == 1.0).all()  # path edges are never scaled
+
+
+def test_true_loops_close_from_far_drift():
+    """A drift of metres makes a true loop disagree hugely at first: least squares closes it
+    before the robust pass could discount it."""
+    true = _ring()
+    g = PoseGraph()
+    drifted = [true[0]]
+    for a in range(len(true) - 1):
+        z = relative(true[a], true[a + 1]) + [0.0, 0.0, 0.03]
+        g.add(a, a + 1, z, np.diag([1e-3, 1e-3, 1e-3]), "path")
+        drifted.append(compose(drifted[-1], z))
+    g.add(39, 0, relative(true[39], true[0]), np.diag([1e-4, 1e-4, 1e-4]), "loop")
+    drifted = np.array(drifted)
+    fixed = g.optimize(drifted)
+    assert np.hypot(*(drifted[39, :2] - drifted[0, :2])) > 5.0
+    e = relative(fixed[39], fixed[0]) - relative(true[39], true[0])
+    assert np.hypot(e[0], e[1]) < 0.05 and g.weights[-1] > 0.5

@@ -82,6 +82,19 @@ def test_spread_bends_the_scans_since_the_last_correction():
     np.testing.assert_allclose(y, [0.0, 0.0, 0.4 / 3, 0.8 / 3, 0.4], atol=1e-12)
 
 
+def test_spread_over_one_scan_gives_it_the_whole_correction():
+    """Corrected on consecutive scans, the block is the last scan alone: it must move (it
+    stayed where it was, a one-scan jump in the trajectory, before)."""
+    vm = VectorMap(SICK)
+    vm.new_segment(0)
+    for x in np.arange(3):
+        vm.insert(np.full(181, 3.0), [float(x), 0.0, 0.0])
+    vm.spread(2, [0.0, 0.3, 0.1])
+    np.testing.assert_allclose(vm.rel_poses[2], [2 * math.cos(0.1), 0.3 + 2 * math.sin(0.1),
+                                                 0.1], atol=1e-12)
+    np.testing.assert_allclose(vm.rel_poses[:2, 1], [0.0, 0.0], atol=1e-12)
+
+
 def test_closed_segment_hangs_between_its_two_milestones():
     vm = VectorMap(SICK)
     vm.new_segment(0)

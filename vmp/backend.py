@@ -1,17 +1,24 @@
 """The back end: the milestone graph, its edges and its adjustment.
 
-Milestones are recorded along the path (the first where the run starts); consecutive ones are
-joined by a path edge, measured by registering their stored scans. When the robot comes back
-to a stored milestone nearer than its anchor, the segment is handed over to it and a loop edge
-joins the two anchors; when the anchor itself stands at the place seen long ago (recorded there
-on this visit) a clear match closes the loop in place, without a handover. A loop edge that
-disagrees with the graph has it adjusted (sparse least squares, :mod:`vmp.pose_graph`); the
-milestones move and their segments with them. Every milestone keeps its covariance in the map
-frame, which gates how far a return to it may disagree with the prediction.
+Milestones are recorded along the path (the first where the run starts), each when the robot
+has moved or turned enough from the anchor, the newest one; consecutive ones are joined by a
+path edge, measured by registering their stored scans. The path stays one chain: coming back
+to a place seen long ago, the robot keeps recording milestones of its own, and a clear match
+on an old one closes the loop by a loop edge between the anchor and it, never by handing the
+segment over (a handover would hang the map on a node a single match placed; a loop edge can
+lose its pull in the robust adjustment when it is wrong). A loop edge that disagrees with the
+graph has it adjusted (sparse least squares, :mod:`vmp.pose_graph`); the milestones move and
+their segments with them. Every milestone keeps its covariance in the map frame, which gates
+how far a return to it may disagree with the prediction.
+
+Measured on the Kuemmerle logs (``python bench/kummerle.py``): handing over to old milestones
+gave ACES 0.366 m and fr079 2.125 m; the one chain with in-place loops 0.13 m and 0.28 m, and
+the Intel part 0.028 -> 0.033 m (docs/benchmarks.md).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -37,6 +44,11 @@ from vmp.view import View
 
 __all__ = ["BackEnd", "fuse"]
 
+# A loop the search found joins the graph when another found at most this many milestones
+# later corrects the robot's pose the same way, within this distance and turn.
+CONFIRM_WITHIN = 3
+CONFIRM_XY = 0.3
+CONFIRM_THETA = math.radians(3.0)
 # Added to every milestone's covariance from the graph's marginals (m^2, m^2, rad^2).
 MARGINAL_FLOOR = np.diag([1e-6, 1e-6, 1e-8])
 
@@ -75,10 +87,22 @@ class BackEnd:
         self.anchor: int | None = None
         # This scan's accepted registration against the anchor, if any.
         self.anchor_registration: Registration | None = None
+
         self._abs_cov: list[FloatArray] = []  # per milestone: covariance in the map frame
         self._closed: set[tuple[int, int]] = set()  # loops closed without a handover
+        self._neighbours: dict[int, set[int]] = {}  # milestone -> the ones edges join it to
+        # A loop the search found, waiting for a second to agree: (anchor, milestone, z,
+        # covariance, correction of the map frame).
+        self._pending: tuple[int, int, FloatArray, FloatArray, FloatArray] | None = None
 
     # ---- what the matcher needs to know ---------------------------------------------------
+
+    def linked(self, tail: int = 3) -> set[int]:
+        """The milestones loop edges join to the last ``tail`` milestones of the path."""
+        out: set[int] = set()
+        for mid in range(self.anchor - tail + 1, self.anchor + 1):
+            out |= {j for j in self._neighbours.get(mid, ()) if abs(j - mid) > 1}
+        return out
 
     def milestone_cov(self, mid: int) -> FloatArray:
         """A milestone's covariance in the map frame."""
@@ -103,12 +127,13 @@ class BackEnd:
         """Record a milestone here if one is due and the place is distinctive; it becomes the
         anchor, joined to the last by a path edge. Returns its id, or None."""
         new = self.milestones.consider(pose, frame.ranges, frame.angle_min,
-                                       frame.angle_increment, frame.max_range, frame.stamp)
+                                       frame.angle_increment, frame.max_range, frame.stamp,
+                                       among=[self.anchor])
         if new is None:
             return None
         self.stats["milestones recorded"] += 1
         rel, cov = self._milestone_edge(self.anchor, new, self.robot_in_anchor(pose))
-        self.graph.add(self.anchor, new, rel, cov, "path")
+        self._add_edge(self.anchor, new, rel, cov, "path")
         self._abs_cov.append(self._compound_cov(self.anchor, rel, cov))
         self.view.milestone(new, self.milestones.pose(new))
         self.anchor = new
@@ -120,7 +145,8 @@ class BackEnd:
         The motion since the anchor bounds the uncertainty (odometry noise over that distance);
         this scan's registration against the anchor narrows it where it sees.
         """
-        rel = relative(self.milestones.pose(self.anchor), pose)
+        anchor_pose = self.milestones.pose(self.anchor)
+        rel = relative(anchor_pose, pose)
         cov = motion_covariance(rel, self.config.motion)
         if self.anchor_registration is not None:
             return rel, fuse(rel, self.anchor_registration.covariance, rel, cov)[1]
@@ -141,6 +167,12 @@ class BackEnd:
         self.stats["milestone edges from the filter"] += 1
         return guess, cov
 
+    def _add_edge(self, i: int, j: int, z: FloatArray, cov: FloatArray, kind: str,
+                  origin: str = "") -> Edge:
+        self._neighbours.setdefault(i, set()).add(j)
+        self._neighbours.setdefault(j, set()).add(i)
+        return self.graph.add(i, j, z, cov, kind, origin)
+
     def _compound_cov(self, anchor: int, rel: FloatArray, cov: FloatArray) -> FloatArray:
         """Map-frame covariance of ``anchor (+) rel``, given the edge covariance ``cov``."""
         return compose_covariance(self.milestones.pose(anchor), self._abs_cov[anchor], rel, cov)
@@ -148,12 +180,15 @@ class BackEnd:
     # ---- returns to stored milestones ------------------------------------------------------
 
     def handover_target(self, matches: list[Match], pose: FloatArray) -> Match | None:
-        """The accepted signature match of a stored milestone nearer than the anchor (the
-        nearest), to hand the segment over to; None when there is none."""
+        """The accepted signature match of the anchor's neighbour on the path (the robot
+        backing up) nearer than the anchor, to hand the segment over to; None when there is
+        none. Returns to older milestones are loops closed in place (:meth:`close_in_place`)."""
         d_anchor = float(np.hypot(*(self.milestones.pose(self.anchor)[:2] - pose[:2])))
         best = None
         for m in matches:
             if not m.accepted or m.kind is not Kind.SIGNATURE:
+                continue
+            if abs(m.milestone - self.anchor) != 1:
                 continue
             if m.seed is not Seed.PREDICTION and pins(m.registration):
                 # Registered from the node, not from the prediction (which, after a long way
@@ -170,11 +205,12 @@ class BackEnd:
         rel_a, cov_a = self.robot_in_anchor(pose)
         return self._milestone_edge(self.anchor, m.milestone, _via(rel_a, cov_a, m.registration))
 
-    def hand_over(self, target: int, z: FloatArray, cov: FloatArray) -> Edge:
+    def hand_over(self, target: int, z: FloatArray, cov: FloatArray, origin: str = "") -> Edge:
         """Join the anchor to ``target`` by an edge (a path edge to the next milestone, else a
         loop edge) and make ``target`` the anchor."""
         sequential = abs(target - self.anchor) == 1
-        edge = self.graph.add(self.anchor, target, z, cov, "path" if sequential else "loop")
+        edge = self._add_edge(self.anchor, target, z, cov, "path" if sequential else "loop",
+                              origin)
         self.stats["anchor switches"] += 1
         self.anchor = target
         if edge.kind == "loop":
@@ -182,12 +218,10 @@ class BackEnd:
         return edge
 
     def close_in_place(self, matches: list[Match], pose: FloatArray) -> Edge | None:
-        """A loop to a milestone no nearer than the anchor: an edge between the two, no
+        """A loop to a milestone seen long ago: an edge between the anchor and it, no
         handover; the edge, or None.
 
-        The anchor may itself stand at the place seen long ago (recorded there on this visit,
-        or on an earlier one whose loop was never closed), so no handover comes; a match that
-        pins the pose then still closes the loop (once per pair of milestones). A match
+        A match that pins the pose closes the loop (once per pair of milestones). A match
         registered from the prediction needs a clear place (``retry_max_ratio``), as one
         registered from the node does: the Intel run passed such places, one after another,
         without closing a loop whenever the robot came back facing another way and recorded a
@@ -202,12 +236,40 @@ class BackEnd:
                     or not pins(m.registration)):
                 continue
             z, cov = self.handover_edge(m, pose)
-            edge = self.graph.add(self.anchor, m.milestone, z, cov, "loop")
             self._closed.add((self.anchor, m.milestone))
+            if m.seed is Seed.SEARCH and not self._confirmed(m, pose, z, cov):
+                continue
+            edge = self._add_edge(self.anchor, m.milestone, z, cov, "loop",
+                                  f"in place, {m.seed.value}")
             self.stats["loop edges"] += 1
             self.stats["loop edges in place"] += 1
             return edge
         return None
+
+    def _confirmed(self, m: Match, pose: FloatArray, z: FloatArray, cov: FloatArray) -> bool:
+        """Whether a loop the search found agrees with the one it found just before (the same
+        correction of the robot's pose, within :data:`CONFIRM_XY` and :data:`CONFIRM_THETA`,
+        found at most :data:`CONFIRM_WITHIN` milestones back); then the earlier one joins the
+        graph too. A find that agrees with none waits for the next.
+
+        The search looks where the drift allows, among many look-alike places; one find is a
+        guess, two that put the map the same way a few metres apart are a loop.
+        """
+        correction = compose(m.z, inverse(pose))  # what the find does to the map frame
+        pending, self._pending = self._pending, (self.anchor, m.milestone, z, cov, correction)
+        if pending is None or self.anchor - pending[0] > CONFIRM_WITHIN:
+            self.stats["loop finds awaiting confirmation"] += 1
+            return False
+        d = relative(compose(pending[4], pose), compose(correction, pose))
+        if math.hypot(d[0], d[1]) > CONFIRM_XY or abs(d[2]) > CONFIRM_THETA:
+            self.stats["loop finds awaiting confirmation"] += 1
+            return False
+        if pending[0] != self.anchor or pending[1] != m.milestone:
+            self._add_edge(*pending[:4], "loop", "in place, search (confirmed)")
+            self.stats["loop edges"] += 1
+            self.stats["loop edges in place"] += 1
+        self._pending = None
+        return True
 
     def disagrees(self, edge: Edge) -> bool:
         """Whether the graph as it stands disagrees with a new edge enough to adjust it."""

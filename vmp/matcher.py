@@ -152,6 +152,12 @@ class Matcher:
                                doubt, scan)
                 for mid, kind, ratio, offset, score in targets]
 
+    def judge(self, mid: int, reg: Registration, ratio: float, score: float, x: FloatArray,
+              P: FloatArray, doubt: Doubt, seed: Seed) -> Match:
+        """A registration on a stored milestone found otherwise (by the loop search), judged
+        as a signature match seeded there."""
+        return self._verdict(mid, Kind.SIGNATURE, reg, seed, ratio, score, x, P, doubt)
+
     def _candidates(self, frame: ScanFrame, pose: FloatArray, anchor: int,
                     gate_cov: FloatArray) -> list[tuple[int, Kind, float, float, float]]:
         """Signature matches worth registering: where a match could change something, a
@@ -184,6 +190,12 @@ class Matcher:
         seed = Seed.PREDICTION
         if kind is Kind.SIGNATURE and offset is not None and not fits(reg, c.registration):
             reg, seed = self._from_node(mid, points, offset, ratio, anchor, scan, reg)
+        return self._verdict(mid, kind, reg, seed, ratio, score, x, P, doubt)
+
+    def _verdict(self, mid: int, kind: Kind, reg: Registration, seed: Seed, ratio: float,
+                 score: float, x: FloatArray, P: FloatArray, doubt: Doubt) -> Match:
+        c = self.config
+        ms_pose = self.milestones.pose(mid)
         z = compose(ms_pose, reg.pose)
         R = rotate_covariance(reg.covariance, ms_pose[2])
         if kind is Kind.ANCHOR:
@@ -241,13 +253,13 @@ class Matcher:
         well and stay near the peak. Returns the refinement, or None.
         """
         self._searched[mid] = scan
-        self.stats["loop searches"] += 1
+        self.stats["node searches"] += 1
         grid = self._grids.get(mid)
         if grid is None:
             grid = self._grids[mid] = grid_for(self.reference(mid).points, self.search)
         found = correlative_search(grid, points, np.array([0.0, 0.0, offset]), self.search)
         if found.score < SEARCH_MIN_SCORE or found.ratio > SEARCH_MAX_RATIO:
-            self.stats["loop searches without a clear peak"] += 1
+            self.stats["node searches without a clear peak"] += 1
             return None
         reg = register(self.reference(mid), points, found.pose)
         shift = reg.pose - found.pose
@@ -255,7 +267,7 @@ class Matcher:
         if (not fits(reg, self.config.registration)
                 or math.hypot(shift[0], shift[1]) > SEARCH_MAX_SHIFT
                 or turn > SEARCH_MAX_TURN):
-            self.stats["loop searches with a poor refinement"] += 1
+            self.stats["node searches with a poor refinement"] += 1
             return None
-        self.stats["loop searches found"] += 1
+        self.stats["node searches found"] += 1
         return reg

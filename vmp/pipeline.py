@@ -25,12 +25,19 @@ from milestones.manager import MilestoneManager
 from vmp.backend import BackEnd
 from vmp.config import MappingConfig
 from vmp.frontend import FrontEnd
-from vmp.matcher import Doubt, Kind, Match, Matcher
+from vmp.loops import NEIGHBOURS, LoopSearch
+from vmp.matcher import Doubt, Kind, Match, Matcher, Seed
+from vmp.submaps import Submaps
 from vmp.types import BeamGeometry, FloatArray, ScanFrame, compose, inverse, relative
 from vmp.vector_map import VectorMap
 from vmp.view import NullView, View
 
 __all__ = ["Pipeline"]
+
+
+# A loop edge the robust adjustment left less than this share of its information counts as
+# down-weighted in the summary.
+DOWN_WEIGHTED = 0.5
 
 
 class Pipeline:
@@ -45,9 +52,11 @@ class Pipeline:
         self.map = VectorMap(geometry, self.config.map.no_return_free_range)
         self.milestones = MilestoneManager(self.config.milestones)
         self.front = FrontEnd(self.config)
+        self.submaps = Submaps(self.map)
         self.matcher = Matcher(self.config, geometry, self.milestones, self.stats)
         self.back = BackEnd(self.config, self.milestones, self.matcher.reference, self.view,
                             self.stats)
+        self.loops = LoopSearch(self.config, self.milestones, self._submap_points, self.stats)
         # Every correction of the robot's pose: (scan index, kind, pose before, pose after).
         self.corrections: list[tuple[int, str, FloatArray, FloatArray]] = []
         self._stamp = 0.0
@@ -77,7 +86,18 @@ class Pipeline:
         x, P = self.front.pose, self.front.covariance
         doubt = Doubt(self.front.motion_since_fix, self.back.cov_via_anchor(x),
                       self.back.milestone_cov)
-        return self.matcher.match(frame, x, P, self.back.anchor, doubt, len(self.map))
+        scan = len(self.map)
+        matches = self.matcher.match(frame, x, P, self.back.anchor, doubt, scan)
+        if self.loops.due(self.back.anchor):
+            seen = {m.milestone for m in matches}
+            finds = self.loops.search(frame, x, self.back.anchor, self.back.linked(), scan,
+                                      lambda mid: P + doubt.via_anchor + doubt.milestone(mid))
+            for find in finds:
+                if find.milestone not in seen:
+                    matches.append(self.matcher.judge(find.milestone, find.registration,
+                                                      find.ratio, find.signature, x, P, doubt,
+                                                      Seed.SEARCH))
+        return matches
 
     def correct(self, matches: list[Match]) -> None:
         """Update the filter from the anchor match; re-localise on a stored milestone the robot
@@ -109,11 +129,15 @@ class Pipeline:
             self._uncorrected = None  # the scan goes into the new segment where the filter is
             now = relative(self.milestones.pose(target.milestone), self.front.pose)
             self._handover = (target.milestone, compose(placed, inverse(now)))
-            edge = self.back.hand_over(target.milestone, z, cov)
+            edge = self.back.hand_over(target.milestone, z, cov,
+                                       f"handover, {target.seed.value}")
             self.view.event(f"scan {len(self.map)}: handed over from milestone {edge.i} to "
                             f"{edge.j} ({edge.kind} edge)")
         if edge is not None and edge.kind == "loop" and self.back.disagrees(edge):
             self._adjust()
+
+    def _submap_points(self, anchor: int):
+        return self.submaps.neighbourhood(anchor, NEIGHBOURS, self.back.poses_by_id())
 
     def _update(self, z: FloatArray, R: FloatArray, kind: str) -> None:
         before = self.front.pose.copy()
@@ -123,10 +147,16 @@ class Pipeline:
     def _adjust(self) -> None:
         """Adjust the milestone graph; the robot moves with its anchor."""
         anchor = self.back.anchor
-        robot_in_anchor = relative(self.milestones.pose(anchor), self.front.pose)
+        anchor_before = self.milestones.pose(anchor).copy()
+        robot_in_anchor = relative(anchor_before, self.front.pose)
         poses = self.back.adjust()
         before = self.front.pose.copy()
         self.front.filter.set_pose(compose(poses[anchor], robot_in_anchor))
+        if self._uncorrected is not None:
+            # This scan's pose before the filter's correction moves with the anchor too: what
+            # is spread over the scans since the last correction is that correction alone.
+            self._uncorrected = compose(poses[anchor], relative(anchor_before,
+                                                                self._uncorrected))
         self.corrections.append((len(self.map), "graph", before, self.front.pose.copy()))
 
     def insert(self, frame: ScanFrame) -> None:
@@ -201,4 +231,9 @@ class Pipeline:
         s["milestones"] = len(self.milestones)
         s["segments"] = len(self.map.segment_anchor)
         s["bytes per scan"] = self.map.bytes_per_scan
+        graph = self.back.graph
+        loops = np.array([e.kind == "loop" for e in graph.edges], dtype=bool)
+        s["loop edges in the graph"] = int(loops.sum())
+        if len(graph.weights) == len(loops):  # after an adjustment
+            s["loop edges down-weighted"] = int((graph.weights[loops] < DOWN_WEIGHTED).sum())
         return s

@@ -4,6 +4,15 @@ Path edges join milestones recorded one after another; loop edges join a milesto
 robot returned to. Adjusting the graph spreads the disagreement a loop reveals over all the
 milestones on the loop (the paper's figure 16: the first and the last milestone assemble the
 whole map), by nonlinear least squares with a sparse Jacobian.
+
+Loop edges are robust. The graph is first solved by least squares: from drifted poses a true
+loop disagrees by the whole drift, and only the least-squares answer tells a loop that
+disagrees with the rest. Where a loop edge still disagrees there (``chi^2`` above
+``ROBUST_C2``), graduated non-convexity takes over (Yang, Antonante, Tzoumas, Carlone, "GNC for
+robust spatial perception", RA-L 2020): loop edges weighted by the Geman-McClure function
+``w = (mu c^2 / (chi^2 + mu c^2))^2`` while ``mu`` shrinks from a convex start to 1, so a
+wrong loop loses its pull instead of bending the map. :attr:`PoseGraph.weights` holds each
+edge's weight on its information after the last adjustment.
 """
 
 from __future__ import annotations
@@ -16,7 +25,13 @@ from scipy.sparse.linalg import splu
 
 from vmp.types import FloatArray, relative, wrap_angle
 
-__all__ = ["Edge", "PoseGraph"]
+__all__ = ["ROBUST_C2", "Edge", "PoseGraph"]
+
+# A loop edge disagreeing by more than this (chi-square, 3 dof 99 %) is an outlier candidate.
+ROBUST_C2 = 11.34
+GNC_STEP = 1.4  # mu shrinks by this factor per round (the paper's value) ...
+GNC_START = 1000.0  # ... from at most this: an edge this far out is out from the start
+GNC_ITERATIONS = 10  # Levenberg-Marquardt iterations per round
 
 
 @dataclass(frozen=True)
@@ -28,6 +43,7 @@ class Edge:
     z: FloatArray
     information: FloatArray  # (3, 3)
     kind: str  # "path" or "loop"
+    origin: str = ""  # how it was found (for reports; not stored in map files)
 
 
 def _marginals(jac, n: int, block: int = 64, dense_limit: int = 900) -> FloatArray | None:
@@ -73,19 +89,21 @@ class PoseGraph:
     def __init__(self) -> None:
         self.edges: list[Edge] = []
         self.marginals: FloatArray | None = None  # (N, 3, 3) after optimize(); node 0 fixed
+        self.weights: FloatArray = np.zeros(0)  # each edge's residual scale after optimize()
 
-    def add(self, i: int, j: int, z: FloatArray, covariance: FloatArray, kind: str) -> Edge:
+    def add(self, i: int, j: int, z: FloatArray, covariance: FloatArray, kind: str,
+            origin: str = "") -> Edge:
         """Add an edge measured with ``covariance``."""
         info = np.linalg.inv(np.asarray(covariance, dtype=np.float64) + np.eye(3) * 1e-12)
-        return self.add_information(i, j, z, 0.5 * (info + info.T), kind)
+        return self.add_information(i, j, z, 0.5 * (info + info.T), kind, origin)
 
     def add_information(self, i: int, j: int, z: FloatArray, information: FloatArray,
-                        kind: str) -> Edge:
+                        kind: str, origin: str = "") -> Edge:
         """Add an edge given its information matrix (as stored in a map file)."""
         if kind not in ("path", "loop"):
             raise ValueError(f"edge kind must be path or loop, got {kind!r}")
         edge = Edge(int(i), int(j), np.asarray(z, dtype=np.float64).copy(),
-                    np.asarray(information, dtype=np.float64).copy(), kind)
+                    np.asarray(information, dtype=np.float64).copy(), kind, origin)
         self.edges.append(edge)
         return edge
 
@@ -116,6 +134,7 @@ class PoseGraph:
             return poses.copy()
         i, j, z, sqrt_info = self._arrays()
         m = len(i)
+        robust = np.array([e.kind == "loop" for e in self.edges])
         # Each edge's 3 residuals depend on the 3 coordinates of its two nodes; the columns of
         # node 0 (fixed) are dropped.
         k3 = 3 * np.arange(m)[:, None, None] + np.arange(3)[None, :, None]
@@ -125,7 +144,9 @@ class PoseGraph:
             c = 3 * (node - 1)[:, None, None] + np.arange(3)[None, None, :]
             blocks.append((node > 0, np.broadcast_to(c, (m, 3, 3))))
 
-        def linearise(p: FloatArray) -> tuple[FloatArray, csc_matrix]:
+        def linearise(p: FloatArray, w: FloatArray) -> tuple[FloatArray, csc_matrix,
+                                                             FloatArray]:
+            """Weighted residuals, their Jacobian, and each edge's unweighted chi^2."""
             c, s = np.cos(p[i, 2]), np.sin(p[i, 2])
             d = p[j, :2] - p[i, :2]
             e = np.empty((m, 3))
@@ -142,16 +163,41 @@ class PoseGraph:
             B[:, 0, 0], B[:, 0, 1] = c, s
             B[:, 1, 0], B[:, 1, 1] = -s, c
             B[:, 2, 2] = 1.0
-            r = np.einsum("kab,kb->ka", sqrt_info, e).ravel()
+            r = np.einsum("kab,kb->ka", sqrt_info, e)
+            chi2 = (r * r).sum(axis=1)
+            scale = np.sqrt(w)
+            r = (r * scale[:, None]).ravel()
             data, rr, cc = [], [], []
             for (free, cols), D in zip(blocks, (A, B), strict=True):
-                W = np.einsum("kab,kbc->kac", sqrt_info, D)
+                W = np.einsum("kab,kbc->kac", sqrt_info, D) * scale[:, None, None]
                 data.append(W[free].ravel())
                 rr.append(rows[free].ravel())
                 cc.append(cols[free].ravel())
             J = coo_matrix((np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))),
                            shape=(3 * m, 3 * (n - 1))).tocsc()
-            return r, J
+            return r, J, chi2
+
+        w = np.ones(m)
+        x = self._levenberg_marquardt(poses.copy(), lambda p: linearise(p, w), max_iterations)
+        _, J, chi2 = linearise(x, w)
+        c2 = ROBUST_C2
+        if (robust & (chi2 > c2)).any():
+            mu = min(2.0 * float(chi2[robust].max()) / c2, GNC_START)
+            while True:
+                mu = max(mu / GNC_STEP, 1.0)
+                w = np.where(robust, (mu * c2 / (chi2 + mu * c2)) ** 2, 1.0)
+                x = self._levenberg_marquardt(x, lambda p, w=w: linearise(p, w), GNC_ITERATIONS)
+                _, J, chi2 = linearise(x, w)
+                if mu == 1.0:
+                    break
+        self.weights = w
+        x[:, 2] = wrap_angle(x[:, 2])
+        self.marginals = _marginals(J, n)
+        return x
+
+    @staticmethod
+    def _levenberg_marquardt(x: FloatArray, linearise, max_iterations: int) -> FloatArray:
+        """Minimise the squared residuals ``linearise`` gives, from ``x`` (node 0 fixed)."""
 
         def step(p: FloatArray, dx: FloatArray) -> FloatArray:
             q = p.copy()
@@ -159,8 +205,7 @@ class PoseGraph:
             q[1:, 2] = wrap_angle(q[1:, 2])
             return q
 
-        x = poses.copy()
-        r, J = linearise(x)
+        r, J, _ = linearise(x)
         cost = float(r @ r)
         lam = 1e-6
         for _ in range(max_iterations):
@@ -173,7 +218,7 @@ class PoseGraph:
                 lam *= 10.0
                 continue
             trial = step(x, dx)
-            r_t, J_t = linearise(trial)
+            r_t, J_t, _ = linearise(trial)
             cost_t = float(r_t @ r_t)
             if cost_t <= cost:
                 done = cost - cost_t <= 1e-12 * max(cost, 1.0) or abs(dx).max() < 1e-10
@@ -185,8 +230,6 @@ class PoseGraph:
                 lam *= 10.0
                 if lam > 1e8:
                     break
-        x[:, 2] = wrap_angle(x[:, 2])
-        self.marginals = _marginals(J, n)
         return x
 
     def chi2(self, poses: FloatArray) -> float:

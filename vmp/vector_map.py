@@ -66,6 +66,8 @@ class VectorMap:
         self._segment = _Grow((), np.int32)
         self._stamp = _Grow((), np.float64)
         self.segment_anchor: list[int] = []  # milestone id of each segment
+        self.segment_start: list[int] = []  # index of each segment's first scan
+        self._by_anchor: dict[int, list[int]] = {}  # milestone id -> its segments
         # Where each closed segment handed over: (next anchor id, its pose in this anchor's
         # frame when the robot switched), or None while open.
         self.segment_end: list[tuple[int, FloatArray] | None] = []
@@ -86,8 +88,25 @@ class VectorMap:
         if self.segment_anchor and handover is not None:
             self.segment_end[-1] = (int(anchor_id), np.asarray(handover, dtype=np.float64))
         self.segment_anchor.append(int(anchor_id))
+        self.segment_start.append(len(self))
         self.segment_end.append(None)
+        self._by_anchor.setdefault(int(anchor_id), []).append(len(self.segment_anchor) - 1)
         return len(self.segment_anchor) - 1
+
+    def segments_of(self, anchor_id: int) -> list[int]:
+        """The segments anchored at a milestone, oldest first."""
+        return self._by_anchor.get(int(anchor_id), [])
+
+    def segment_scans(self, segment: int) -> range:
+        """The indices of a segment's scans (a segment's scans are consecutive)."""
+        starts = self.segment_start
+        end = starts[segment + 1] if segment + 1 < len(starts) else len(self)
+        return range(starts[segment], end)
+
+    def scan_hits(self, scans: NDArray[np.int64] | range) -> NDArray[np.bool_]:
+        """``(K, N)``: True where a beam of the given scans hit something."""
+        packed = self._hits.view[np.asarray(scans, dtype=np.int64)]
+        return np.unpackbits(packed, axis=1, count=self.geometry.num_beams).astype(bool)
 
     def insert(self, ranges: FloatArray, rel_pose: FloatArray, stamp: float = 0.0,
                free_range: float | None = None) -> int:
@@ -124,6 +143,11 @@ class VectorMap:
                           (self._segment, segment), (self._stamp, stamps)):
             grow.a = np.array(arr, dtype=grow.a.dtype, copy=True)
             grow.n = len(arr)
+        seg = self.segments
+        self.segment_start = [int(np.searchsorted(seg, g)) for g in range(len(segment_anchor))]
+        self._by_anchor = {}
+        for g, a in enumerate(self.segment_anchor):
+            self._by_anchor.setdefault(a, []).append(g)
 
     # ---- corrections -------------------------------------------------------------------------
 
@@ -145,7 +169,10 @@ class VectorMap:
         block = rel[first:last + 1]
         step = np.hypot(*np.diff(block[:, :2], axis=0).T) + np.abs(np.diff(block[:, 2])) * 0.1
         travel = np.concatenate([[0.0], np.cumsum(step)])
-        frac = travel / travel[-1] if travel[-1] > 0 else np.linspace(0.0, 1.0, len(block))
+        if travel[-1] > 0:
+            frac = travel / travel[-1]
+        else:  # no motion: evenly, and the last scan (maybe the only one) takes all of it
+            frac = np.linspace(0.0, 1.0, len(block)) if len(block) > 1 else np.ones(1)
         c = np.asarray(correction, dtype=np.float64)
         share = frac[:, None] * np.array([c[0], c[1], wrap_angle(c[2])])[None, :]
         rel[first:last + 1] = compose(share, block)

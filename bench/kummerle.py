@@ -1,0 +1,144 @@
+"""The Kuemmerle benchmark: every log in ../shared/data with a relations file, default settings.
+
+Run: python bench/kummerle.py [--only intel] [--repeat 1] [--no-kiss]
+
+For each log it runs, in turn, KISS-ICP (odometry only, voxel 0.25 m, 2 threads; kiss-icp is in
+the bench extra) and ``vmp map LOG`` as whole processes, timing each from outside, then scores
+vmp-slam's trajectory on the log's relations (Kuemmerle et al. 2009: the error of every
+relative motion between two stamped poses). It prints, per log, the translational and
+rotational error (mean +- std), the loop edges in the graph and how many the robust adjustment
+down-weighted, the wall time, the real-time factor and the ratio to KISS-ICP's time; writes the
+table beside the published figures into docs/benchmarks.md and each map to
+docs/maps/kummerle_NAME.png. Each ``vmp map`` goes to a temporary results folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from report import machine, write_section
+
+from vmp.evaluate import read_relations, relation_error
+from vmp.tum import read_tum
+
+HERE = Path(__file__).resolve().parent
+DATA = HERE.parent.parent / "shared" / "data"
+MAPS = HERE.parent / "docs" / "maps"
+# Published on the full data sets (Hess et al. 2016, tables II and V; GM from Kuemmerle et
+# al. 2009): (Cartographer m, deg; graph mapping m, deg). The Intel log here is its first part.
+PUBLISHED = {"intel": (0.0229, 0.453, 0.031, 1.3), "aces": (0.0375, 0.373, 0.044, 0.4),
+             "fr079": (0.0452, 0.538, 0.056, 0.6)}
+
+
+def logs() -> list[tuple[str, Path, Path]]:
+    """(name, log, relations) for every folder of the data that holds a relations file."""
+    out = []
+    for rel in sorted(DATA.glob("*/*.relations")):
+        found = [p for p in rel.parent.iterdir()
+                 if p.suffixes[-2:] == [".clf", ".gz"] or p.suffix == ".clf"]
+        if found:
+            out.append((rel.stem, found[0], rel))
+    return out
+
+
+def timed(cmd: list[str]) -> float:
+    """Wall time of a whole process; its output is kept only when it fails."""
+    t = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-2000:]}")
+    return wall
+
+
+def vmp_map(log: Path, out: Path) -> float:
+    return timed([sys.executable, "-m", "vmp", "map", str(log), "--out", str(out), "-q"])
+
+
+def kiss_icp(log: Path) -> float:
+    return timed([sys.executable, str(HERE / "kiss_icp_odometry.py"), str(log),
+                  "--voxel", "0.25", "--threads", "2"])
+
+
+def measure(name: str, log: Path, relations: Path, repeat: int, kiss: bool, work: Path) -> dict:
+    walls, kiss_walls = [], []
+    for k in range(repeat):
+        if kiss:
+            kiss_walls.append(kiss_icp(log))
+        walls.append(vmp_map(log, work / f"{name}-{k}"))
+    folder = work / f"{name}-{repeat - 1}" / "latest"
+    stamps, poses = read_tum(folder / "trajectory.tum")
+    err = relation_error(stamps, poses, read_relations(relations))
+    metrics = json.loads((folder / "metrics.json").read_text())
+    MAPS.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(folder / "grid.png", MAPS / f"kummerle_{name}.png")
+    duration = float(stamps.max() - stamps.min())
+    wall = statistics.median(walls)
+    row = {"name": name, "scans": len(stamps), "trans": err.trans_mean, "trans_std": err.trans_std,
+           "rot": math.degrees(err.rot_mean), "rot_std": math.degrees(err.rot_std),
+           "relations": err.used, "loops": metrics.get("loop edges in the graph", 0),
+           "down": metrics.get("loop edges down-weighted", 0), "wall": wall,
+           "rt": duration / wall, "kiss": statistics.median(kiss_walls) if kiss_walls else None}
+    kiss_text = f", KISS-ICP {row['kiss']:.1f} s (x{wall / row['kiss']:.1f})" if kiss else ""
+    print(f"{name}: {row['trans']:.4f} +- {row['trans_std']:.4f} m, {row['rot']:.2f} +- "
+          f"{row['rot_std']:.2f} deg on {row['relations']} relations; {row['loops']} loop edges "
+          f"({row['down']} down-weighted); {wall:.1f} s for {duration:.0f} s of data "
+          f"({row['rt']:.0f}x real time){kiss_text}", flush=True)
+    return row
+
+
+def table(rows: list[dict], repeat: int) -> str:
+    lines = ["## Kuemmerle benchmark", "",
+             f"`python bench/kummerle.py --repeat {repeat}` on {machine()}: every log in "
+             "`../shared/data` with a relations file, mapped by `vmp map LOG` with the default "
+             "configuration; times are whole processes (median of the repeats), KISS-ICP "
+             "(odometry only, voxel 0.25 m, 2 threads) run in turn on the same log. Published "
+             "figures are on the full data sets (the Intel log here is its first 1,089 s).", "",
+             "| log | vmp-slam trans (m) | vmp-slam rot (deg) | loop edges (down-weighted) | "
+             "wall | real time | / KISS-ICP | Cartographer | graph mapping |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        pub = PUBLISHED.get(r["name"])
+        cart = f"{pub[0]} m, {pub[1]} deg" if pub else "-"
+        gm = f"{pub[2]} m, {pub[3]} deg" if pub else "-"
+        ratio = f"{r['wall'] / r['kiss']:.1f} ({r['kiss']:.1f} s)" if r["kiss"] else "-"
+        lines.append(f"| {r['name']} ({r['relations']} relations) | {r['trans']:.4f} +- "
+                     f"{r['trans_std']:.4f} | {r['rot']:.2f} +- {r['rot_std']:.2f} | "
+                     f"{r['loops']} ({r['down']}) | {r['wall']:.1f} s | {r['rt']:.1f}x | "
+                     f"{ratio} | {cart} | {gm} |")
+    lines += ["", "Maps: " + ", ".join(f"[{r['name']}](maps/kummerle_{r['name']}.png)"
+                                        for r in rows) + ".", ""]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--only", help="only this log (the relations file's name: intel, aces, ...)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per log, median time kept")
+    ap.add_argument("--no-kiss", action="store_true", help="do not time KISS-ICP")
+    args = ap.parse_args()
+    found = [entry for entry in logs() if args.only in (None, entry[0])]
+    if not found:
+        raise SystemExit(f"no log with a relations file under {DATA}"
+                         + (f" named {args.only}" if args.only else ""))
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = [measure(name, log, rel, args.repeat, not args.no_kiss, Path(tmp))
+                for name, log, rel in found]
+    if args.only is None:
+        write_section("kummerle", table(rows, args.repeat))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,89 @@
+"""Branch-and-bound scan matching: the exhaustive search's answer at a fraction of its cost."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from vmp.branch_bound import SearchGrid, _angles, search
+from vmp.types import compose, inverse, transform_points
+
+
+def _room() -> np.ndarray:
+    """Walls of a 12 x 8 m room with a pillar and a niche, sampled every 2 cm."""
+    corners = [(0, 0), (12, 0), (12, 8), (7, 8), (7, 6.5), (6, 6.5), (6, 8), (0, 8), (0, 0)]
+    walls = [np.linspace(a, b, int(np.hypot(*np.subtract(b, a)) / 0.02))
+             for a, b in itertools.pairwise(corners)]
+    pillar = [np.linspace(a, b, 25) for a, b in (((4, 3), (4.5, 3)), ((4.5, 3), (4.5, 3.5)))]
+    return np.vstack(walls + pillar)
+
+
+def _seen_from(world: np.ndarray, pose: np.ndarray, keep: int = 150) -> np.ndarray:
+    """World points within 10 m of ``pose``, in its frame, thinned to about ``keep``."""
+    local = transform_points(inverse(pose), world)
+    local = local[np.hypot(local[:, 0], local[:, 1]) < 10.0]
+    return local[np.linspace(0, len(local) - 1, keep).round().astype(int)]
+
+
+def test_recovers_a_known_pose_from_a_poor_guess():
+    world = _room()
+    grid = SearchGrid(world, 0.05, 0.05, depth=5, max_window=3.0)
+    truth = np.array([5.3, 2.2, 0.4])
+    live = _seen_from(world, truth)
+    found = search(grid, live, truth + [1.2, -0.9, math.radians(12)], 2.0, math.radians(20))
+    assert found is not None and found.score > 0.9
+    assert np.hypot(*(found.pose[:2] - truth[:2])) <= 0.05
+    assert abs(found.pose[2] - truth[2]) <= math.radians(0.5)
+
+
+def test_equals_the_exhaustive_search():
+    world = _room()
+    grid = SearchGrid(world, 0.1, 0.1, depth=3, max_window=1.0)
+    truth = np.array([8.0, 4.0, -0.3])
+    live = _seen_from(world, truth, keep=60)
+    center = truth + [0.35, -0.25, 0.04]
+    found = search(grid, live, center, 0.6, math.radians(5))
+    best = max(grid.score(live, np.array([center[0] + i * 0.1, center[1] + j * 0.1, th]))
+               for th in center[2] + _angles(live, 0.1, math.radians(5))
+               for i in range(-6, 7) for j in range(-6, 7))
+    assert found.score == pytest.approx(best, abs=1e-12)
+    assert found.evaluated < 13 * 13 * len(_angles(live, 0.1, math.radians(5)))
+
+
+def test_nothing_above_the_minimum_score_is_none():
+    world = _room()
+    grid = SearchGrid(world, 0.1, 0.1, depth=4, max_window=2.0)
+    elsewhere = np.random.default_rng(1).uniform(-5, 5, (100, 2))  # no such place
+    assert search(grid, elsewhere, np.array([6.0, 4.0, 0.0]), 1.0, 0.2, min_score=0.8) is None
+
+
+def test_excluding_the_best_gives_the_best_elsewhere():
+    """Two identical rooms side by side: the second best pose is the other room's."""
+    room = _room()
+    world = np.vstack([room, room + [20.0, 0.0]])
+    grid = SearchGrid(world, 0.1, 0.1, depth=6, max_window=12.0)
+    truth = np.array([5.0, 4.0, 0.0])
+    live = _seen_from(room, truth)  # sees only its own room's walls
+    center = truth + [10.0, 0.0, 0.0]  # halfway: both rooms in the window
+    best = search(grid, live, center, 11.0, math.radians(3))
+    rival = search(grid, live, center, 11.0, math.radians(3),
+                   exclude=(best.pose, 0.5, math.radians(5)))
+    poses = sorted([best.pose[0], rival.pose[0]])
+    assert poses[0] == pytest.approx(5.0, abs=0.1) and poses[1] == pytest.approx(25.0, abs=0.1)
+    assert rival.score > 0.9 * best.score
+
+
+def test_a_grid_needs_points():
+    with pytest.raises(ValueError, match="at least one"):
+        SearchGrid(np.zeros((0, 2)))
+
+
+def test_the_search_is_independent_of_where_the_points_lie():
+    """Points far off the grid score nothing and break nothing (no bounds checks needed)."""
+    world = _room()
+    grid = SearchGrid(world, 0.1, 0.1, depth=4, max_window=1.0)
+    truth = np.array([3.0, 2.0, 0.2])
+    live = np.vstack([_seen_from(world, truth), [[500.0, -300.0], [-1e4, 1e4]]])
+    found = search(grid, live, compose(truth, [0.2, 0.1, 0.0]), 0.5, 0.1)
+    assert np.hypot(*(found.pose[:2] - truth[:2])) <= 0.1

@@ -1,0 +1,203 @@
+"""Branch-and-bound correlative scan matching over precomputed multi-resolution grids.
+
+After Olson ("Real-time correlative scan matching", ICRA 2009) and Hess et al. ("Real-time
+loop closure in 2D LIDAR SLAM", ICRA 2016). The reference (a submap's points) becomes a
+likelihood grid; level ``d`` of the precomputed stack holds, at each cell, the largest
+likelihood in the ``2^d x 2^d`` block that starts there, so the score of a pose on level ``d``
+bounds the score of every pose in its block on level 0. The search scores the whole window
+coarsely, then descends only into blocks whose bound can still beat the best exact score found
+so far: the answer is the exhaustive search's, at a fraction of its cost, which grows with the
+log of the window's area rather than with the area.
+
+NumPy suits a level-by-level descent better than the depth-first recursion of the papers: all
+surviving candidates of a level are scored in one gather, after a greedy dive from the best of
+them has set the bound.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+
+from vmp.types import FloatArray
+
+__all__ = ["Match", "SearchGrid", "search"]
+
+
+@dataclass(frozen=True)
+class Match:
+    """The best pose in a window, its score (mean likelihood of the points) and effort."""
+
+    pose: FloatArray  # (3,) the points' frame in the grid's frame
+    score: float  # in [0, 1]
+    evaluated: int  # candidate poses scored, all levels together
+
+
+class SearchGrid:
+    """A likelihood grid of reference points and its stack of block maxima.
+
+    ``resolution`` is the cell size; the likelihood falls off with the distance to the nearest
+    reference point as ``exp(-d^2 / 2 sigma^2)``; ``depth`` levels are precomputed.
+    """
+
+    def __init__(self, points: FloatArray, resolution: float = 0.1, sigma: float = 0.1,
+                 depth: int = 5, max_window: float = 4.0) -> None:
+        pts = np.asarray(points, dtype=np.float64)
+        pts = pts[np.isfinite(pts).all(axis=1)] if pts.size else pts.reshape(0, 2)
+        if len(pts) == 0:
+            raise ValueError("a search grid needs at least one reference point")
+        self.resolution, self.sigma, self.depth = float(resolution), float(sigma), int(depth)
+        self.max_steps = math.ceil(max_window / resolution - 1e-9)
+        margin = math.ceil(3.0 * sigma / resolution) + 1
+        # Zeros around the likelihood, wide enough that a point clamped into the padding
+        # (see :meth:`clamp`) reads zeros under every offset of the window on every level.
+        self.pad = 2 * self.max_steps + (1 << depth) + 1
+        lo = pts.min(axis=0) - (margin + self.pad) * resolution
+        inner = np.ceil((pts.max(axis=0) - pts.min(axis=0)) / resolution).astype(int) \
+            + 2 * margin + 1
+        full = (inner[0] + 2 * self.pad, inner[1] + 2 * self.pad)
+        self.origin = lo
+        cells = np.rint((pts - lo) / resolution).astype(np.int64)
+        near = np.zeros(full, dtype=bool)
+        near[cells[:, 0], cells[:, 1]] = True
+        box = (slice(self.pad, full[0] - self.pad), slice(self.pad, full[1] - self.pad))
+        d = distance_transform_edt(~near[box]) * resolution
+        base = np.zeros(full, dtype=np.uint8)
+        base[box] = np.round(255.0 * np.exp(-0.5 * (d / sigma) ** 2)).astype(np.uint8)
+        self.levels = [base]
+        for k in range(1, depth + 1):
+            self.levels.append(_block_max(self.levels[-1], 1 << (k - 1)))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.levels[0].shape  # type: ignore[return-value]
+
+    def cells(self, points: FloatArray, pose: FloatArray) -> tuple[np.ndarray, np.ndarray]:
+        """Cell indices of ``points`` (their frame) placed at ``pose``."""
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        x = pose[0] + c * points[:, 0] - s * points[:, 1]
+        y = pose[1] + s * points[:, 0] + c * points[:, 1]
+        return (np.rint((x - self.origin[0]) / self.resolution).astype(np.int64),
+                np.rint((y - self.origin[1]) / self.resolution).astype(np.int64))
+
+    def clamp(self, cx: np.ndarray, cy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cells moved into the padding where they lie beyond it: under any offset of a
+        window up to ``max_window`` they then index the grid and read zeros (the likelihood is
+        zero there too), so the search needs no bounds checks."""
+        lo, hi = self.max_steps, np.array(self.shape) - 1 - self.max_steps - (1 << self.depth)
+        return np.clip(cx, lo, hi[0]), np.clip(cy, lo, hi[1])
+
+    def score(self, points: FloatArray, pose: FloatArray) -> float:
+        """Mean likelihood of ``points`` at ``pose`` (level 0)."""
+        cx, cy = self.clamp(*self.cells(np.asarray(points, dtype=np.float64), pose))
+        return float(self.levels[0][cx, cy].mean()) / 255.0
+
+
+def _block_max(grid: np.ndarray, step: int) -> np.ndarray:
+    """The maximum of the four cells ``step`` apart: a block of ``2 step`` from blocks of
+    ``step`` (cells beyond the edge count as zero)."""
+    out = grid.copy()
+    out[:-step, :] = np.maximum(out[:-step, :], grid[step:, :])
+    shifted = out.copy()
+    out[:, :-step] = np.maximum(out[:, :-step], shifted[:, step:])
+    return out
+
+
+def _angles(points: FloatArray, resolution: float, window: float) -> FloatArray:
+    """Rotations searched: a step that moves the farthest point by about one cell."""
+    r = float(np.hypot(points[:, 0], points[:, 1]).max()) if len(points) else 1.0
+    step = math.acos(max(-1.0, 1.0 - resolution**2 / (2.0 * max(r, resolution) ** 2)))
+    n = math.ceil(window / step)
+    return np.arange(-n, n + 1) * step
+
+
+def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: float,
+           window_theta: float, min_score: float = 0.0,
+           exclude: tuple[FloatArray, float, float] | None = None) -> Match | None:
+    """The best pose of ``points`` within ``window_xy`` (either way, in x and y) and
+    ``window_theta`` of ``center``, or None when no pose scores ``min_score``.
+
+    ``exclude`` (a pose, a distance and a turn) leaves out the poses that near it: the best
+    pose elsewhere, to tell a clear peak from one of several alike.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    res, depth = grid.resolution, grid.depth
+    thetas = center[2] + _angles(pts, res, window_theta)
+    steps = min(math.ceil(window_xy / res - 1e-9), grid.max_steps)
+    # Each rotation's points, placed at the window's centre: cell indices (R, M).
+    cx = np.empty((len(thetas), len(pts)), dtype=np.int64)
+    cy = np.empty_like(cx)
+    for k, th in enumerate(thetas):  # a few hundred rotations, each vectorised over points
+        cx[k], cy[k] = grid.clamp(*grid.cells(pts, np.array([center[0], center[1], th])))
+    scale = 255.0 * len(pts)
+    stride = grid.shape[1]
+    flat = cx * stride + cy  # (R, M) flat cell indices
+    levels = [g.ravel() for g in grid.levels]
+
+    def scores(level: int, rot: np.ndarray, ox: np.ndarray, oy: np.ndarray) -> np.ndarray:
+        vals = levels[level][flat[rot] + (ox * stride + oy)[:, None]]
+        out = vals.sum(axis=1, dtype=np.int64) / scale
+        if level == 0 and exclude is not None:  # bounds above stay bounds
+            pose, dxy, dth = exclude
+            near = (np.hypot(center[0] + ox * res - pose[0], center[1] + oy * res - pose[1])
+                    < dxy) & (np.abs((thetas[rot] - pose[2] + math.pi) % (2 * math.pi)
+                                     - math.pi) < dth)
+            out[near] = -1.0
+        return out
+
+    # The coarsest candidates: blocks of 2^depth cells whose children cover the window.
+    top = 1 << depth
+    corners = np.arange(-steps, steps + 1, top)
+    rot, ox, oy = (a.ravel() for a in np.meshgrid(np.arange(len(thetas)), corners, corners,
+                                                  indexing="ij"))
+    values = scores(depth, rot, ox, oy)
+    evaluated = len(rot)
+    best: tuple[float, tuple[int, int, int] | None] = (min_score, None)
+    for level in range(depth, 0, -1):
+        keep = values >= best[0]
+        if not keep.any():
+            break
+        rot, ox, oy, values = rot[keep], ox[keep], oy[keep], values[keep]
+        best = _dive(scores, level, rot, ox, oy, values, steps, best)
+        half = 1 << (level - 1)
+        n = len(rot)
+        rot = np.repeat(rot, 4)
+        ox = np.repeat(ox, 4) + np.tile([0, half, 0, half], n)
+        oy = np.repeat(oy, 4) + np.tile([0, 0, half, half], n)
+        inside = (ox <= steps) & (oy <= steps)
+        rot, ox, oy = rot[inside], ox[inside], oy[inside]
+        values = scores(level - 1, rot, ox, oy)
+        evaluated += len(rot)
+        if level == 1 and len(values):  # exact scores: the leaves
+            i = int(np.argmax(values))
+            if values[i] >= best[0]:
+                best = (float(values[i]), (int(rot[i]), int(ox[i]), int(oy[i])))
+    if best[1] is None:
+        return None
+    r, x, y = best[1]
+    pose = np.array([center[0] + x * res, center[1] + y * res,
+                     (thetas[r] + math.pi) % (2 * math.pi) - math.pi])
+    return Match(pose, best[0], evaluated)
+
+
+def _dive(scores, level: int, rot: np.ndarray, ox: np.ndarray, oy: np.ndarray,
+          level_scores: np.ndarray, steps: int, best: tuple) -> tuple:
+    """Follow the best candidate's best child down to level 0; a better exact score found
+    on the way raises the bound that prunes the others."""
+    i = int(np.argmax(level_scores))
+    r, x, y = rot[i], ox[i], oy[i]
+    for lv in range(level, 0, -1):
+        half = 1 << (lv - 1)
+        cx = np.array([x, x + half, x, x + half])
+        cy = np.array([y, y, y + half, y + half])
+        ok = (cx <= steps) & (cy <= steps)
+        cx, cy = cx[ok], cy[ok]
+        s = scores(lv - 1, np.full(len(cx), r), cx, cy)
+        j = int(np.argmax(s))
+        x, y = cx[j], cy[j]
+        if lv == 1 and s[j] >= best[0]:
+            return float(s[j]), (int(r), int(x), int(y))
+    return best

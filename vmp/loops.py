@@ -1,0 +1,222 @@
+"""Loop closure by geometry, ranked by signatures.
+
+Every few scans the live scan is searched for in the submaps of stored milestones that could
+be where the robot is: those inside the window that the drift since them allows (a few sigma
+of the robot's and the milestone's covariances, capped), far enough back along the path. The
+milestones' signatures rank them (the paper's job for signatures: cheap identification), and
+the best few are searched by branch and bound (:mod:`vmp.branch_bound`) over the window, then
+refined by ICP against the submap's points. A find must score well, stand clear of the best
+pose elsewhere in the window, fit closely and pin the pose; it then becomes a signature match
+seeded by the search, judged like any other (:mod:`vmp.matcher`), and closes the loop in the
+milestone graph, whose robust adjustment (:mod:`vmp.pose_graph`) keeps a wrong one from bending
+the map.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, OrderedDict
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+
+from milestones.manager import MilestoneManager
+from vmp.branch_bound import Match, SearchGrid, search
+from vmp.config import MappingConfig
+from vmp.registration import Reference, Registration, fits, register
+from vmp.types import FloatArray, ScanFrame, relative
+
+__all__ = ["Find", "LoopSearch"]
+
+SIGMAS = 3.0  # the window spans this many sigma of the drift either way ...
+MIN_WINDOW_XY = 0.5  # ... at least this (m) ...
+MAX_WINDOW_XY = 7.0  # ... and at most this (m)
+MIN_WINDOW_THETA = math.radians(10.0)
+MAX_WINDOW_THETA = math.radians(30.0)
+REACH = 3.0  # a milestone this far beyond the window may still share the view (m)
+NEIGHBOURS = 3  # a candidate's submap takes in the segments of this many milestones either way
+CANDIDATES = 2  # submaps searched per search, best signatures first
+RESOLUTION = 0.1  # search grid cell (m)
+SIGMA = 0.1  # likelihood fall-off (m)
+DEPTH = 5  # levels of block maxima: the coarsest blocks are 3.2 m
+GRID_RADIUS = 20.0  # submap points farther than this from the milestone are left out (m)
+LIVE_POINTS = 100  # live points searched with (evenly thinned)
+LIVE_RANGE = 12.0  # live points beyond this range are left out (m)
+MIN_SCORE = 0.55  # mean likelihood of the live points at the find
+MAX_RATIO = 0.9  # the best pose elsewhere in the window scores at most this share of it
+SEPARATION_XY = 0.5  # "elsewhere": this far from the find (m) ...
+SEPARATION_THETA = math.radians(5.0)  # ... or turned this much
+MAX_SHIFT = 0.3  # ICP may move this far from the find (m) ...
+MAX_TURN = math.radians(5.0)  # ... and turn this much
+RIVAL_CHI2 = 11.34  # a rival this far out under the fit's covariance makes a find ambiguous
+CACHED_GRIDS = 64  # search grids kept (least recently used dropped)
+LINKED = 2  # a candidate this near (in ids) to a milestone the recent path is joined to
+#             needs no search: the prediction already knows where it is
+
+
+class Find:
+    """A loop found: the milestone, the live scan's pose in its frame, the search's figures."""
+
+    def __init__(self, milestone: int, registration: Registration, score: float,
+                 ratio: float, signature: float) -> None:
+        self.milestone, self.registration = milestone, registration
+        self.score, self.ratio, self.signature = score, ratio, signature
+
+
+class LoopSearch:
+    """Searches the live scan in the submaps of milestones it may have come back to."""
+
+    def __init__(self, config: MappingConfig, milestones: MilestoneManager,
+                 submap_points: Callable[[int], tuple[tuple[int, ...], FloatArray] | None],
+                 stats: Counter[str]) -> None:
+        self.config = config
+        self.milestones = milestones
+        self.submap_points = submap_points  # a milestone's segments and submap points
+        self.stats = stats
+        self._grids: OrderedDict[int, tuple[tuple[int, ...], SearchGrid, Reference]] = \
+            OrderedDict()
+        self._searched: int | None = None  # the anchor of the last search
+
+    def due(self, anchor: int) -> bool:
+        """Whether to search now: once per anchor, at its first scan (a new milestone, so
+        every metre or so along the path)."""
+        return anchor != self._searched
+
+    def candidates(self, pose: FloatArray, anchor: int, linked: set[int],
+                   drift: Callable[[int], FloatArray]) -> list[tuple[int, float, float]]:
+        """Milestones the robot at ``pose`` may be near: (id, window xy, window theta).
+
+        Left out: milestones near the anchor or the newest one along the path (the anchor
+        match covers them) and those within :data:`LINKED` of a milestone the graph already
+        joins to the recent path (``linked``): there the prediction is right, and signature
+        matches registered from it close the loops more cheaply.
+        """
+        ids = self.milestones.ids
+        sep = self.config.loops.separation
+        far_back = (np.abs(ids - anchor) > sep) & (ids < ids[-1] - sep)
+        if linked:
+            near_linked = np.abs(ids[:, None] - np.fromiter(linked, np.int64)[None, :])
+            far_back &= near_linked.min(axis=1) > LINKED
+        if not far_back.any():
+            return []
+        ids = ids[far_back]
+        d = np.hypot(*(self.milestones.poses[far_back, :2] - pose[:2]).T)
+        out = []
+        for mid, dist in zip(ids, d, strict=True):  # the milestones within reach
+            if dist > MAX_WINDOW_XY + REACH:
+                continue
+            cov = drift(int(mid))
+            wxy = float(np.clip(SIGMAS * math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(),
+                                                       0.0)), MIN_WINDOW_XY, MAX_WINDOW_XY))
+            if dist <= wxy + REACH:
+                wth = float(np.clip(SIGMAS * math.sqrt(cov[2, 2]), MIN_WINDOW_THETA,
+                                    MAX_WINDOW_THETA))
+                out.append((int(mid), wxy, wth))
+        return out
+
+    def search(self, frame: ScanFrame, pose: FloatArray, anchor: int, linked: set[int],
+               scan: int, drift: Callable[[int], FloatArray]) -> list[Find]:
+        """Loops the live scan closes (at most :data:`CANDIDATES` searched)."""
+        self._searched = anchor
+        near = self.candidates(pose, anchor, linked, drift)
+        if not near:
+            return []
+        windows = {mid: (wxy, wth) for mid, wxy, wth in near}
+        ranked = self.milestones.rank(frame.ranges, frame.angle_min, frame.angle_increment,
+                                      frame.max_range, list(windows))
+        points = _live_points(frame)
+        if len(points) < 20:
+            return []
+        out = []
+        for mid, signature, _ in ranked[:CANDIDATES]:
+            self.stats["loop searches"] += 1
+            center = relative(self.milestones.pose(mid), pose)
+            found = self._search_one(mid, points, frame.points(), center, *windows[mid])
+            if found is not None:
+                found.signature = signature
+                out.append(found)
+        return out
+
+    def _grid(self, mid: int) -> tuple[SearchGrid, Reference] | None:
+        held = self.submap_points(mid)
+        if held is None:
+            return None
+        segments, pts = held
+        cached = self._grids.get(mid)
+        if cached is not None and cached[0] == segments:
+            self._grids.move_to_end(mid)
+            return cached[1], cached[2]
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= GRID_RADIUS]
+        if len(pts) < 20:
+            return None
+        grid = SearchGrid(pts, RESOLUTION, SIGMA, DEPTH, MAX_WINDOW_XY)
+        ref = Reference(pts)
+        self._grids[mid] = (segments, grid, ref)
+        if len(self._grids) > CACHED_GRIDS:
+            self._grids.popitem(last=False)
+        return grid, ref
+
+    def _search_one(self, mid: int, points: FloatArray, all_points: FloatArray,
+                    center: FloatArray, wxy: float, wth: float) -> Find | None:
+        """The live scan in milestone ``mid``'s submap, searched within the window around
+        ``center`` (a pose in its frame), verified; or None."""
+        built = self._grid(mid)
+        if built is None:
+            return None
+        grid, ref = built
+        best = search(grid, points, center, wxy, wth, MIN_SCORE)
+        if best is None:
+            self.stats["loop searches below the score"] += 1
+            return None
+        reg = register(ref, all_points, best.pose)
+        shift = relative(best.pose, reg.pose)
+        if (not fits(reg, self.config.registration) or math.hypot(shift[0], shift[1]) > MAX_SHIFT
+                or abs(shift[2]) > MAX_TURN):
+            self.stats["loop searches with a poor refinement"] += 1
+            return None
+        if reg.by_corners:
+            # The edge takes only what the lines pin down: along a corridor's axis a corner's
+            # sampling bias would otherwise pull the loop.
+            lines = register(ref, all_points, reg.pose, corners=False)
+            if np.isfinite(lines.rms):
+                reg = replace(reg, covariance=lines.covariance, by_corners=False)
+        rival = search(grid, points, center, wxy, wth, MAX_RATIO * best.score,
+                       exclude=(best.pose, SEPARATION_XY, SEPARATION_THETA))
+        ratio = 0.0 if rival is None else rival.score / best.score
+        if rival is not None and _distinct(rival.pose, reg) and _rivals(grid, all_points, best,
+                                                                       rival):
+            # Another pose fits about as well, with the near points searched with and with
+            # all of them, and the refined fit can tell the two apart: which one is right is
+            # a guess. (A rival along a corridor's axis, where the fit's covariance is wide,
+            # is the same answer: the edge leaves that direction free.)
+            self.stats["loop searches ambiguous"] += 1
+            return None
+        self.stats["loop searches found"] += 1
+        return Find(mid, reg, best.score, ratio, math.nan)
+
+
+def _distinct(pose: FloatArray, reg: Registration) -> bool:
+    """Whether ``pose`` lies outside the refined fit's uncertainty (chi-square, 3 dof, 99 %)."""
+    d = relative(reg.pose, pose)
+    try:
+        return float(d @ np.linalg.solve(reg.covariance, d)) > RIVAL_CHI2
+    except np.linalg.LinAlgError:  # singular: free along some direction, the rival too
+        return False
+
+
+def _rivals(grid: SearchGrid, all_points: FloatArray, best: Match, rival: Match) -> bool:
+    """Whether ``rival`` still scores :data:`MAX_RATIO` of ``best`` with every live point in
+    the grid's reach: the near points searched with may show only a corridor both poses fit,
+    while the far ones (ACES's beams reach 50 m) see where along it the robot is."""
+    far = all_points[np.hypot(all_points[:, 0], all_points[:, 1]) <= GRID_RADIUS]
+    return grid.score(far, rival.pose) >= MAX_RATIO * grid.score(far, best.pose)
+
+
+def _live_points(frame: ScanFrame) -> FloatArray:
+    """The live scan's points searched with: within :data:`LIVE_RANGE`, evenly thinned."""
+    pts = frame.points()
+    pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= LIVE_RANGE]
+    if len(pts) > LIVE_POINTS:
+        pts = pts[np.linspace(0, len(pts) - 1, LIVE_POINTS).round().astype(np.int64)]
+    return pts
