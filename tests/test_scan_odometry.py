@@ -117,3 +117,30 @@ def test_motion_noise_follows_wheels_noisier_than_configured():
             x += step
             odo.increment(_room_scan(x), np.array([step + rng.normal(0, sigma), 0.0, 0.0]))
         assert expect_scale[0] <= odo.noise_scale <= expect_scale[1], (sigma, odo.noise_scale)
+
+
+def test_the_scanner_mount_is_learned_from_turns():
+    """A scanner 10 cm ahead of the axle swings sideways when the robot turns on the spot
+    (the Intel and ACES robots do); the offset is learned from the turns' registrations."""
+    from vmp.types import compose, inverse, transform_points
+
+    walls = np.concatenate([np.column_stack([np.linspace(-3, 3, 300), np.full(300, y)])
+                            for y in (-3.0, 3.0)]
+                           + [np.column_stack([np.full(300, x), np.linspace(-3, 3, 300)])
+                              for x in (-3.0, 2.0)])  # not square: every turn is distinct
+    mount = np.array([0.1, 0.0, 0.0])
+
+    def seen_from(base: np.ndarray) -> np.ndarray:
+        return transform_points(inverse(compose(base, mount)), walls)
+
+    odo = odometry()
+    base = np.zeros(3)
+    odo.increment(seen_from(base), None)
+    step = np.array([0.0, 0.0, math.radians(10.0)])
+    for _ in range(72):  # two turns on the spot
+        base = compose(base, step)
+        u, _ = odo.increment(seen_from(base), step)
+    np.testing.assert_allclose(odo.mount, mount[:2], atol=0.01)
+    # The scanner's increment, as the filter gets it, swings sideways by the mount.
+    expected = compose(compose(inverse(mount), step), mount)
+    np.testing.assert_allclose(u, expected, atol=0.005)

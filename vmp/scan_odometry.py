@@ -43,6 +43,10 @@ SLIP.flags.writeable = False
 NOISE_MEMORY = 200
 CHI2_3DOF_MEDIAN = 2.366
 CHI2_3DOF_95 = 7.815
+MOUNT_MIN_TURN = math.radians(3.0)  # increments turning less say too little about the mount
+MOUNT_FORGET = 0.999  # per turn learned from
+MOUNT_SIGMA = 0.01  # the offset is used once known to this (m) ...
+MAX_MOUNT = 0.5  # ... and at most this far from the axle (m)
 MAX_NOISE_SCALE = 100.0
 NO_ODOMETRY = np.diag([1.0, 1.0, 1.0])  # a source without odometry: "within a metre"
 NO_ODOMETRY.flags.writeable = False
@@ -63,6 +67,12 @@ class ScanOdometry:
         self._disagreement: deque[float] = deque(maxlen=NOISE_MEMORY)
         self.noise_scale = 1.0  # the learned factor on the configured motion noise
         self.tail_scale = 1.0  # ... and on it beside a registration (at least noise_scale)
+        # Where the scanner sits on the robot (m, in the robot's frame): odometry moves the
+        # robot, registration the scanner; turning on the spot, a scanner ahead of the axle
+        # swings sideways. Learned from turns (normal equations, forgetting).
+        self.mount = np.zeros(2)
+        self._mount_normal = np.zeros((2, 2))
+        self._mount_rhs = np.zeros(2)
 
     @property
     def scale(self) -> float:
@@ -84,7 +94,9 @@ class ScanOdometry:
             wheel = np.zeros(3)
             q_wheel = NO_ODOMETRY
         else:
-            wheel = np.array([wheel[0] * self.scale, wheel[1] * self.scale, wheel[2]])
+            base = np.array([wheel[0] * self.scale, wheel[1] * self.scale, wheel[2]])
+            wheel = base.copy()
+            wheel[:2] += _mount_matrix(base[2]) @ self.mount  # the scanner's increment
             q_wheel = motion_covariance(wheel, self.noise) * self.noise_scale
         if not c.enabled or len(points) < MIN_POINTS:
             return wheel, q_wheel
@@ -104,6 +116,7 @@ class ScanOdometry:
         d2 = float(d @ np.linalg.solve(q_wheel + reg.covariance, d))
         if fit and q_wheel[0, 0] < 1.0:
             self._learn_noise(d2)
+            self._learn_mount(wheel, u_reg, q_wheel + reg.covariance)
         q_slip = q_wheel * (self.tail_scale / self.noise_scale) + SLIP
         if not fit or float(d @ np.linalg.solve(q_slip + reg.covariance, d)) > CHI2_3DOF_99:
             self.fallbacks += 1
@@ -140,6 +153,23 @@ class ScanOdometry:
             self.tail_scale = float(np.clip(tail / CHI2_3DOF_95, self.noise_scale,
                                             MAX_NOISE_SCALE))
 
+    def _learn_mount(self, wheel: FloatArray, u_reg: FloatArray, cov: FloatArray) -> None:
+        """Refine the scanner's mounting offset from a turn's registered increment: the
+        scanner's increment is ``inverse(T) (+) base (+) T`` for a mount ``T``, whose
+        translation part is linear in the offset (:func:`_mount_matrix`)."""
+        if abs(wheel[2]) < MOUNT_MIN_TURN:
+            return
+        M = _mount_matrix(wheel[2])
+        base_xy = wheel[:2] - M @ self.mount  # the increment of the robot itself
+        W = np.linalg.inv(cov[:2, :2])
+        self._mount_normal = self._mount_normal * MOUNT_FORGET + M.T @ W @ M
+        self._mount_rhs = self._mount_rhs * MOUNT_FORGET + M.T @ W @ (u_reg[:2] - base_xy)
+        if np.linalg.eigvalsh(self._mount_normal)[0] * MOUNT_SIGMA**2 < 1.0:
+            return  # not yet pinned to MOUNT_SIGMA
+        offset = np.linalg.solve(self._mount_normal, self._mount_rhs)
+        norm = float(np.hypot(*offset))
+        self.mount = offset if norm <= MAX_MOUNT else offset * (MAX_MOUNT / norm)
+
     def _learn_scale(self, wheel: FloatArray, u_reg: FloatArray, cov: FloatArray) -> None:
         """Accumulate wheel and registered distance where registration sees along travel."""
         dist = float(np.hypot(wheel[0], wheel[1]))
@@ -159,3 +189,10 @@ class ScanOdometry:
             self._rel = np.zeros(3)
         except ValueError:
             pass
+
+
+def _mount_matrix(turn: float) -> FloatArray:
+    """``(2, 2)``: what a scanner mounted at offset ``o`` from the robot adds to the robot's
+    translation over an increment turning by ``turn``: ``(R(turn) - I) o``."""
+    c, s = math.cos(turn), math.sin(turn)
+    return np.array([[c - 1.0, -s], [s, c - 1.0]])
