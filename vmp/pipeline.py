@@ -94,8 +94,10 @@ class Pipeline:
                                       lambda mid: P + doubt.via_anchor + doubt.milestone(mid))
             for find in finds:
                 if find.milestone not in seen:
+                    # The search judged its own rivals (vmp.loops): a rival pose's score is
+                    # not a signature's, so the matcher's signature ratio test gets none.
                     matches.append(self.matcher.judge(find.milestone, find.registration,
-                                                      find.ratio, find.signature, x, P, doubt,
+                                                      0.0, find.signature, x, P, doubt,
                                                       Seed.SEARCH))
         return matches
 
