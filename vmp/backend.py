@@ -87,7 +87,6 @@ class BackEnd:
         self.anchor: int | None = None
         # This scan's accepted registration against the anchor, if any.
         self.anchor_registration: Registration | None = None
-
         self._abs_cov: list[FloatArray] = []  # per milestone: covariance in the map frame
         self._closed: set[tuple[int, int]] = set()  # loops closed without a handover
         self._neighbours: dict[int, set[int]] = {}  # milestone -> the ones edges join it to
@@ -145,8 +144,7 @@ class BackEnd:
         The motion since the anchor bounds the uncertainty (odometry noise over that distance);
         this scan's registration against the anchor narrows it where it sees.
         """
-        anchor_pose = self.milestones.pose(self.anchor)
-        rel = relative(anchor_pose, pose)
+        rel = relative(self.milestones.pose(self.anchor), pose)
         cov = motion_covariance(rel, self.config.motion)
         if self.anchor_registration is not None:
             return rel, fuse(rel, self.anchor_registration.covariance, rel, cov)[1]
@@ -167,11 +165,10 @@ class BackEnd:
         self.stats["milestone edges from the filter"] += 1
         return guess, cov
 
-    def _add_edge(self, i: int, j: int, z: FloatArray, cov: FloatArray, kind: str,
-                  origin: str = "") -> Edge:
+    def _add_edge(self, i: int, j: int, z: FloatArray, cov: FloatArray, kind: str) -> Edge:
         self._neighbours.setdefault(i, set()).add(j)
         self._neighbours.setdefault(j, set()).add(i)
-        return self.graph.add(i, j, z, cov, kind, origin)
+        return self.graph.add(i, j, z, cov, kind)
 
     def _compound_cov(self, anchor: int, rel: FloatArray, cov: FloatArray) -> FloatArray:
         """Map-frame covariance of ``anchor (+) rel``, given the edge covariance ``cov``."""
@@ -205,16 +202,12 @@ class BackEnd:
         rel_a, cov_a = self.robot_in_anchor(pose)
         return self._milestone_edge(self.anchor, m.milestone, _via(rel_a, cov_a, m.registration))
 
-    def hand_over(self, target: int, z: FloatArray, cov: FloatArray, origin: str = "") -> Edge:
-        """Join the anchor to ``target`` by an edge (a path edge to the next milestone, else a
-        loop edge) and make ``target`` the anchor."""
-        sequential = abs(target - self.anchor) == 1
-        edge = self._add_edge(self.anchor, target, z, cov, "path" if sequential else "loop",
-                              origin)
+    def hand_over(self, target: int, z: FloatArray, cov: FloatArray) -> Edge:
+        """Join the anchor to ``target``, its neighbour on the path (see
+        :meth:`handover_target`), by a path edge and make ``target`` the anchor."""
+        edge = self._add_edge(self.anchor, target, z, cov, "path")
         self.stats["anchor switches"] += 1
         self.anchor = target
-        if edge.kind == "loop":
-            self.stats["loop edges"] += 1
         return edge
 
     def close_in_place(self, matches: list[Match], pose: FloatArray) -> Edge | None:
@@ -239,8 +232,7 @@ class BackEnd:
             self._closed.add((self.anchor, m.milestone))
             if m.seed is Seed.SEARCH and not self._confirmed(m, pose, z, cov):
                 continue
-            edge = self._add_edge(self.anchor, m.milestone, z, cov, "loop",
-                                  f"in place, {m.seed.value}")
+            edge = self._add_edge(self.anchor, m.milestone, z, cov, "loop")
             self.stats["loop edges"] += 1
             self.stats["loop edges in place"] += 1
             return edge
@@ -265,7 +257,7 @@ class BackEnd:
             self.stats["loop finds awaiting confirmation"] += 1
             return False
         if pending[0] != self.anchor or pending[1] != m.milestone:
-            self._add_edge(*pending[:4], "loop", "in place, search (confirmed)")
+            self._add_edge(*pending[:4], "loop")
             self.stats["loop edges"] += 1
             self.stats["loop edges in place"] += 1
         self._pending = None

@@ -20,8 +20,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
 
+from vmp.correlative import likelihood_field
 from vmp.types import FloatArray
 
 __all__ = ["Match", "SearchGrid", "search"]
@@ -51,23 +51,12 @@ class SearchGrid:
             raise ValueError("a search grid needs at least one reference point")
         self.resolution, self.sigma, self.depth = float(resolution), float(sigma), int(depth)
         self.max_steps = math.ceil(max_window / resolution - 1e-9)
-        margin = math.ceil(3.0 * sigma / resolution) + 1
         # Zeros around the likelihood, wide enough that a point clamped into the padding
         # (see :meth:`clamp`) reads zeros under every offset of the window on every level.
         self.pad = 2 * self.max_steps + (1 << depth) + 1
-        lo = pts.min(axis=0) - (margin + self.pad) * resolution
-        inner = np.ceil((pts.max(axis=0) - pts.min(axis=0)) / resolution).astype(int) \
-            + 2 * margin + 1
-        full = (inner[0] + 2 * self.pad, inner[1] + 2 * self.pad)
-        self.origin = lo
-        cells = np.rint((pts - lo) / resolution).astype(np.int64)
-        near = np.zeros(full, dtype=bool)
-        near[cells[:, 0], cells[:, 1]] = True
-        box = (slice(self.pad, full[0] - self.pad), slice(self.pad, full[1] - self.pad))
-        d = distance_transform_edt(~near[box]) * resolution
-        base = np.zeros(full, dtype=np.uint8)
-        base[box] = np.round(255.0 * np.exp(-0.5 * (d / sigma) ** 2)).astype(np.uint8)
-        self.levels = [base]
+        self.origin, field = likelihood_field(pts, self.resolution, self.sigma, self.pad)
+        # One byte a cell: the block maxima are gathered by the thousand per search level.
+        self.levels = [np.round(255.0 * field).astype(np.uint8)]
         for k in range(1, depth + 1):
             self.levels.append(_block_max(self.levels[-1], 1 << (k - 1)))
 

@@ -32,7 +32,8 @@ from scipy.ndimage import distance_transform_edt
 
 from vmp.types import FloatArray
 
-__all__ = ["CorrelativeConfig", "CorrelativeMatch", "LikelihoodGrid", "correlative_search"]
+__all__ = ["CorrelativeConfig", "CorrelativeMatch", "LikelihoodGrid", "correlative_search",
+           "likelihood_field"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,25 @@ class CorrelativeMatch:
         return self.runner_up / self.score if self.score > 0 else math.inf
 
 
+def likelihood_field(points: FloatArray, resolution: float, sigma: float,
+                     pad: int) -> tuple[FloatArray, FloatArray]:
+    """The likelihood ``exp(-d^2 / 2 sigma^2)`` of the distance ``d`` to the nearest of the
+    finite ``points`` ``(N, 2)``, per cell: the world position of cell (0, 0)'s centre and the
+    field, covering the points plus a few ``sigma`` and ``pad`` cells of zeros on every side."""
+    margin = math.ceil(3.0 * sigma / resolution) + 1
+    lo = points.min(axis=0) - (margin + pad) * resolution
+    hi = points.max(axis=0) + (margin + pad) * resolution
+    shape = np.ceil((hi - lo) / resolution).astype(np.int64) + 1
+    cells = np.rint((points - lo) / resolution).astype(np.int64)
+    free = np.ones(tuple(shape), dtype=bool)
+    free[cells[:, 0], cells[:, 1]] = False
+    field = np.exp(-0.5 * (distance_transform_edt(free) * resolution / sigma) ** 2)
+    if pad:  # cells within ``pad`` of the border stay zero
+        field[:pad], field[-pad:] = 0.0, 0.0
+        field[:, :pad], field[:, -pad:] = 0.0, 0.0
+    return lo, field
+
+
 class LikelihoodGrid:
     """The likelihood of a point falling at each cell, given reference points ``(N, 2)``.
 
@@ -90,21 +110,10 @@ class LikelihoodGrid:
             raise ValueError("a likelihood grid needs at least one finite point")
         self.resolution = float(resolution)
         self.sigma = float(sigma)
-        margin = math.ceil(3.0 * sigma / resolution) + 1
         self.pad = int(pad)
-        lo = pts.min(axis=0) - (margin + self.pad) * resolution
-        hi = pts.max(axis=0) + (margin + self.pad) * resolution
-        shape = np.ceil((hi - lo) / resolution).astype(np.int64) + 1
-        self.origin = lo  # world position of cell (0, 0)'s centre
-        cells = np.rint((pts - lo) / resolution).astype(np.int64)
-        free = np.ones(tuple(shape), dtype=bool)
-        free[cells[:, 0], cells[:, 1]] = False
-        d = distance_transform_edt(free) * resolution
-        grid = np.exp(-0.5 * (d / sigma) ** 2).astype(np.float32)
-        if self.pad:  # cells within ``pad`` of the border stay zero
-            grid[: self.pad], grid[-self.pad:] = 0.0, 0.0
-            grid[:, : self.pad], grid[:, -self.pad:] = 0.0, 0.0
-        self.grid = grid
+        # origin: the world position of cell (0, 0)'s centre
+        self.origin, field = likelihood_field(pts, self.resolution, self.sigma, self.pad)
+        self.grid = field.astype(np.float32)
 
     @property
     def shape(self) -> tuple[int, int]:

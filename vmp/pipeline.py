@@ -131,10 +131,9 @@ class Pipeline:
             self._uncorrected = None  # the scan goes into the new segment where the filter is
             now = relative(self.milestones.pose(target.milestone), self.front.pose)
             self._handover = (target.milestone, compose(placed, inverse(now)))
-            edge = self.back.hand_over(target.milestone, z, cov,
-                                       f"handover, {target.seed.value}")
+            edge = self.back.hand_over(target.milestone, z, cov)
             self.view.event(f"scan {len(self.map)}: handed over from milestone {edge.i} to "
-                            f"{edge.j} ({edge.kind} edge)")
+                            f"{edge.j} (path edge)")
         if edge is not None and edge.kind == "loop" and self.back.disagrees(edge):
             self._adjust()
 

@@ -43,7 +43,6 @@ class Edge:
     z: FloatArray
     information: FloatArray  # (3, 3)
     kind: str  # "path" or "loop"
-    origin: str = ""  # how it was found (for reports; not stored in map files)
 
 
 def _marginals(jac, n: int, block: int = 64, dense_limit: int = 900) -> FloatArray | None:
@@ -91,19 +90,18 @@ class PoseGraph:
         self.marginals: FloatArray | None = None  # (N, 3, 3) after optimize(); node 0 fixed
         self.weights: FloatArray = np.zeros(0)  # each edge's residual scale after optimize()
 
-    def add(self, i: int, j: int, z: FloatArray, covariance: FloatArray, kind: str,
-            origin: str = "") -> Edge:
+    def add(self, i: int, j: int, z: FloatArray, covariance: FloatArray, kind: str) -> Edge:
         """Add an edge measured with ``covariance``."""
         info = np.linalg.inv(np.asarray(covariance, dtype=np.float64) + np.eye(3) * 1e-12)
-        return self.add_information(i, j, z, 0.5 * (info + info.T), kind, origin)
+        return self.add_information(i, j, z, 0.5 * (info + info.T), kind)
 
     def add_information(self, i: int, j: int, z: FloatArray, information: FloatArray,
-                        kind: str, origin: str = "") -> Edge:
+                        kind: str) -> Edge:
         """Add an edge given its information matrix (as stored in a map file)."""
         if kind not in ("path", "loop"):
             raise ValueError(f"edge kind must be path or loop, got {kind!r}")
         edge = Edge(int(i), int(j), np.asarray(z, dtype=np.float64).copy(),
-                    np.asarray(information, dtype=np.float64).copy(), kind, origin)
+                    np.asarray(information, dtype=np.float64).copy(), kind)
         self.edges.append(edge)
         return edge
 
