@@ -100,12 +100,10 @@ class LoopSearch:
             far_back &= near_linked.min(axis=1) > LINKED
         if not far_back.any():
             return []
-        ids = ids[far_back]
         d = np.hypot(*(self.milestones.poses[far_back, :2] - pose[:2]).T)
+        reach = d <= MAX_WINDOW_XY + REACH
         out = []
-        for mid, dist in zip(ids, d, strict=True):  # the milestones within reach
-            if dist > MAX_WINDOW_XY + REACH:
-                continue
+        for mid, dist in zip(ids[far_back][reach], d[reach], strict=True):  # a handful
             cov = drift(int(mid))
             wxy = float(np.clip(SIGMAS * math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(),
                                                        0.0)), MIN_WINDOW_XY, MAX_WINDOW_XY))
