@@ -11,9 +11,8 @@ graph has it adjusted (sparse least squares, :mod:`vmp.pose_graph`); the milesto
 their segments with them. Every milestone keeps its covariance in the map frame, which gates
 how far a return to it may disagree with the prediction.
 
-Measured on the Kuemmerle logs (``python bench/kummerle.py``): handing over to old milestones
-gave ACES 0.366 m and fr079 2.125 m; the one chain with in-place loops 0.13 m and 0.28 m, and
-the Intel part 0.028 -> 0.033 m (docs/benchmarks.md).
+Handing over to old milestones had kept ACES and fr079 far off on the Kuemmerle logs
+(``python bench/kummerle.py``; figures in docs/benchmarks.md).
 """
 
 from __future__ import annotations
