@@ -20,11 +20,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
-from vmp.correlative import likelihood_field
 from vmp.types import FloatArray
 
-__all__ = ["Match", "SearchGrid", "search"]
+__all__ = ["Match", "SearchGrid", "likelihood_field", "search"]
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,25 @@ class Match:
     pose: FloatArray  # (3,) the points' frame in the grid's frame
     score: float  # in [0, 1]
     evaluated: int  # candidate poses scored, all levels together
+
+
+def likelihood_field(points: FloatArray, resolution: float, sigma: float,
+                     pad: int) -> tuple[FloatArray, FloatArray]:
+    """The likelihood ``exp(-d^2 / 2 sigma^2)`` of the distance ``d`` to the nearest of the
+    finite ``points`` ``(N, 2)``, per cell: the world position of cell (0, 0)'s centre and the
+    field, covering the points plus a few ``sigma`` and ``pad`` cells of zeros on every side."""
+    margin = math.ceil(3.0 * sigma / resolution) + 1
+    lo = points.min(axis=0) - (margin + pad) * resolution
+    hi = points.max(axis=0) + (margin + pad) * resolution
+    shape = np.ceil((hi - lo) / resolution).astype(np.int64) + 1
+    cells = np.rint((points - lo) / resolution).astype(np.int64)
+    free = np.ones(tuple(shape), dtype=bool)
+    free[cells[:, 0], cells[:, 1]] = False
+    field = np.exp(-0.5 * (distance_transform_edt(free) * resolution / sigma) ** 2)
+    if pad:  # cells within ``pad`` of the border stay zero
+        field[:pad], field[-pad:] = 0.0, 0.0
+        field[:, :pad], field[:, -pad:] = 0.0, 0.0
+    return lo, field
 
 
 class SearchGrid:

@@ -74,7 +74,6 @@ class LoopConfig:
     switch_margin: float = 0.3  # hand over when another milestone is this much nearer (m)
     separation: int = 5  # milestones this many recordings apart may close a loop
     adjust_chi2: float = 1.0  # adjust the graph when a new loop edge disagrees this much
-    search_every: int = 5  # scans between two window searches for the same milestone
 
 
 @dataclass(frozen=True)

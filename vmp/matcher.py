@@ -6,8 +6,8 @@ change something (a milestone nearer than the anchor, or one far back along the 
 match is rejected on a poor fit, an ambiguous signature (a rival place scores nearly as well)
 or a failed Mahalanobis gate; a rejected match changes nothing. A loop candidate that ICP
 cannot register from the prediction, whose drift after a long way round may be metres, is
-registered from its node, or found by an exhaustive correlative search around the node
-(:mod:`vmp.correlative`) and accepted only on a clear peak and a close ICP fit.
+registered from its node; where that fails too, the loop search (:mod:`vmp.loops`) looks for
+the place by branch and bound.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ import numpy as np
 
 from milestones.manager import MilestoneManager
 from vmp.config import MappingConfig
-from vmp.correlative import CorrelativeConfig, LikelihoodGrid, correlative_search, grid_for
 from vmp.fusion import CHI2_3DOF_99, pose_residual
 from vmp.registration import MIN_POINTS, Reference, Registration, fits, register
 from vmp.types import BeamGeometry, FloatArray, ScanFrame, compose, relative, rotate_covariance
@@ -34,13 +33,6 @@ PINNED_SIGMA_XY = 0.1
 PINNED_SIGMA_THETA = 0.05
 # A heading this uncertain (rad) is replaced by the signature's heading offset as ICP's start.
 UNCERTAIN_HEADING = math.radians(10.0)
-# A window search's verdict: the runner-up's share of the peak score above which the place is
-# ambiguous, the least mean likelihood of the live points at the peak, and how far its ICP
-# refinement may move from the peak (m, rad).
-SEARCH_MAX_RATIO = 0.85
-SEARCH_MIN_SCORE = 0.4
-SEARCH_MAX_SHIFT = 0.2
-SEARCH_MAX_TURN = math.radians(4.0)
 # The drift covariances compounded along hundreds of path edges are optimistic (the odometry's
 # errors are not white); a match registered without the prediction (from the node or by the
 # search) and pinned by its fit is gated on drift covariances inflated by this factor.
@@ -55,7 +47,7 @@ class Kind(Enum):
 
 
 class Seed(Enum):
-    """Where the registration started: the prediction, the milestone's node, a window search."""
+    """Where the registration started: the prediction, the milestone's node, the loop search."""
 
     PREDICTION = "prediction"
     NODE = "node"
@@ -119,10 +111,7 @@ class Matcher:
         self.geometry = geometry
         self.milestones = milestones
         self.stats = stats
-        self.search = CorrelativeConfig()
         self._refs: dict[int, Reference] = {}
-        self._grids: dict[int, LikelihoodGrid] = {}  # window-search grids of milestones
-        self._searched: dict[int, int] = {}  # milestone -> scan index of its last search
 
     def reference(self, mid: int) -> Reference:
         """The registration reference of a milestone's stored scan (built once)."""
@@ -136,11 +125,10 @@ class Matcher:
         return ref
 
     def match(self, frame: ScanFrame, pose: FloatArray, cov: FloatArray, anchor: int,
-              doubt: Doubt, scan: int) -> list[Match]:
+              doubt: Doubt) -> list[Match]:
         """The matches of one scan: its anchor's, then its signature candidates'.
 
-        ``pose`` and ``cov`` are the filter's; ``scan`` is the scan's index (window searches
-        are spaced in scans).
+        ``pose`` and ``cov`` are the filter's.
         """
         points = frame.points()
         if len(points) < MIN_POINTS:
@@ -148,8 +136,7 @@ class Matcher:
             return []
         targets = [(anchor, Kind.ANCHOR, 0.0, None, math.nan)]
         targets += self._candidates(frame, pose, anchor, cov + doubt.via_anchor)
-        return [self._register(mid, kind, ratio, offset, score, points, pose, cov, anchor,
-                               doubt, scan)
+        return [self._register(mid, kind, ratio, offset, score, points, pose, cov, doubt)
                 for mid, kind, ratio, offset, score in targets]
 
     def judge(self, mid: int, reg: Registration, ratio: float, score: float, x: FloatArray,
@@ -180,7 +167,7 @@ class Matcher:
 
     def _register(self, mid: int, kind: Kind, ratio: float, offset: float | None,
                   score: float, points: FloatArray, x: FloatArray, P: FloatArray,
-                  anchor: int, doubt: Doubt, scan: int) -> Match:
+                  doubt: Doubt) -> Match:
         c = self.config
         ms_pose = self.milestones.pose(mid)
         guess = relative(ms_pose, x)
@@ -189,7 +176,7 @@ class Matcher:
         reg = register(self.reference(mid), points, guess)
         seed = Seed.PREDICTION
         if kind is Kind.SIGNATURE and offset is not None and not fits(reg, c.registration):
-            reg, seed = self._from_node(mid, points, offset, ratio, anchor, scan, reg)
+            reg, seed = self._from_node(mid, points, offset, ratio, reg)
         return self._verdict(mid, kind, reg, seed, ratio, score, x, P, doubt)
 
     def _verdict(self, mid: int, kind: Kind, reg: Registration, seed: Seed, ratio: float,
@@ -221,7 +208,7 @@ class Matcher:
         return Match(mid, kind, reg, z, R, d2, ratio, score, reason, seed)
 
     def _from_node(self, mid: int, points: FloatArray, offset: float, ratio: float,
-                   anchor: int, scan: int, reg: Registration) -> tuple[Registration, Seed]:
+                   reg: Registration) -> tuple[Registration, Seed]:
         """A signature match ICP could not register from the prediction, which may have
         drifted far (a loop after a long way round): a matching signature says the robot
         stands near the node, turned by the offset. Returns the registration to judge."""
@@ -231,43 +218,4 @@ class Matcher:
         if (fits(retry, c.registration) and ratio <= c.matching.retry_max_ratio
                 and retry.inliers >= c.matching.retry_min_inliers):
             return retry, Seed.NODE
-        if self._search_due(mid, anchor, scan):
-            found = self._window_search(mid, points, offset, scan)
-            if found is not None:
-                return found, Seed.SEARCH
         return reg, Seed.PREDICTION
-
-    def _search_due(self, mid: int, anchor: int, scan: int) -> bool:
-        """Whether a window search against milestone ``mid`` may run for this scan."""
-        if abs(mid - anchor) <= self.config.loops.separation:
-            return False
-        last = self._searched.get(mid)
-        return last is None or scan - last >= self.config.loops.search_every
-
-    def _window_search(self, mid: int, points: FloatArray, offset: float,
-                       scan: int) -> Registration | None:
-        """Register ``points`` on milestone ``mid`` by a window search around its node.
-
-        The window is centred on the node, turned by the signature's heading offset; the peak
-        must stand clear of every pose a separation away, and its ICP refinement must fit
-        well and stay near the peak. Returns the refinement, or None.
-        """
-        self._searched[mid] = scan
-        self.stats["node searches"] += 1
-        grid = self._grids.get(mid)
-        if grid is None:
-            grid = self._grids[mid] = grid_for(self.reference(mid).points, self.search)
-        found = correlative_search(grid, points, np.array([0.0, 0.0, offset]), self.search)
-        if found.score < SEARCH_MIN_SCORE or found.ratio > SEARCH_MAX_RATIO:
-            self.stats["node searches without a clear peak"] += 1
-            return None
-        reg = register(self.reference(mid), points, found.pose)
-        shift = reg.pose - found.pose
-        turn = abs((shift[2] + math.pi) % (2 * math.pi) - math.pi)
-        if (not fits(reg, self.config.registration)
-                or math.hypot(shift[0], shift[1]) > SEARCH_MAX_SHIFT
-                or turn > SEARCH_MAX_TURN):
-            self.stats["node searches with a poor refinement"] += 1
-            return None
-        self.stats["node searches found"] += 1
-        return reg

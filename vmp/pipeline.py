@@ -87,7 +87,7 @@ class Pipeline:
         doubt = Doubt(self.front.motion_since_fix, self.back.cov_via_anchor(x),
                       self.back.milestone_cov)
         scan = len(self.map)
-        matches = self.matcher.match(frame, x, P, self.back.anchor, doubt, scan)
+        matches = self.matcher.match(frame, x, P, self.back.anchor, doubt)
         if self.loops.due(self.back.anchor):
             seen = {m.milestone for m in matches}
             finds = self.loops.search(frame, x, self.back.anchor, self.back.linked(), scan,

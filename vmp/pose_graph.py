@@ -32,6 +32,10 @@ ROBUST_C2 = 11.34
 GNC_STEP = 1.4  # mu shrinks by this factor per round (the paper's value) ...
 GNC_START = 1000.0  # ... from at most this: an edge this far out is out from the start
 GNC_ITERATIONS = 10  # Levenberg-Marquardt iterations per round
+# Levenberg-Marquardt stops when a step lowers the cost by less than this share. At 1e-12 most
+# rounds ran to their iteration limit (fr079: 610 of 968); at 1e-6 the Intel graph's poses
+# moved by under a micrometre and its adjustment took 0.18 s instead of 0.32 s.
+LM_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -219,7 +223,7 @@ class PoseGraph:
             r_t, J_t, _ = linearise(trial)
             cost_t = float(r_t @ r_t)
             if cost_t <= cost:
-                done = cost - cost_t <= 1e-12 * max(cost, 1.0) or abs(dx).max() < 1e-10
+                done = cost - cost_t <= LM_TOLERANCE * max(cost, 1.0) or abs(dx).max() < 1e-10
                 x, r, J, cost = trial, r_t, J_t, cost_t
                 lam = max(lam / 10.0, 1e-12)
                 if done:
