@@ -1,12 +1,15 @@
 """Loop closure by geometry, ranked by signatures.
 
-Every few scans the live scan is searched for in the submaps of stored milestones that could
+At every new milestone the live scan is searched for in the submaps of stored milestones that could
 be where the robot is: those inside the window that the drift since them allows (a few sigma
 of the robot's and the milestone's covariances, capped), far enough back along the path. The
 milestones' signatures rank them (the paper's job for signatures: cheap identification), and
 the best few are searched by branch and bound (:mod:`vmp.branch_bound`) over the window, then
 refined by ICP against the submap's points. A find must score well, stand clear of the best
-pose elsewhere in the window, fit closely and pin the pose; it then becomes a signature match
+pose elsewhere in the window, fit closely and pin the pose; in a corridor, whose walls leave the
+refinement free along the axis, a peak that nothing else in the window comes near, and that
+falls off within half a metre along the axis, places the scan there to the search's cell (the
+submap's doors, posts and ends do what the walls cannot). It then becomes a signature match
 seeded by the search, judged like any other (:mod:`vmp.matcher`), and closes the loop in the
 milestone graph, whose robust adjustment (:mod:`vmp.pose_graph`) keeps a wrong one from bending
 the map.
@@ -49,6 +52,7 @@ SEPARATION_XY = 0.5  # "elsewhere": this far from the find (m) ...
 SEPARATION_THETA = math.radians(5.0)  # ... or turned this much
 MAX_SHIFT = 0.3  # ICP may move this far from the find (m) ...
 MAX_TURN = math.radians(5.0)  # ... and turn this much
+FREE_VARIANCE = 1.0  # a direction the lines' covariance leaves this open (m^2) is free
 RIVAL_CHI2 = 11.34  # a rival this far out under the fit's covariance makes a find ambiguous
 CACHED_GRIDS = 64  # search grids kept (least recently used dropped)
 LINKED = 2  # a candidate this near (in ids) to a milestone the recent path is joined to
@@ -182,16 +186,45 @@ class LoopSearch:
         rival = search(grid, points, center, wxy, wth, MAX_RATIO * best.score,
                        exclude=(best.pose, SEPARATION_XY, SEPARATION_THETA))
         ratio = 0.0 if rival is None else rival.score / best.score
-        if rival is not None and _distinct(rival.pose, reg) and _rivals(grid, all_points, best,
-                                                                       rival):
+        close_rival = rival is not None and _rivals(grid, all_points, best, rival)
+        if close_rival and _distinct(rival.pose, reg):
             # Another pose fits about as well, with the near points searched with and with
             # all of them, and the refined fit can tell the two apart: which one is right is
             # a guess. (A rival along a corridor's axis, where the fit's covariance is wide,
             # is the same answer: the edge leaves that direction free.)
             self.stats["loop searches ambiguous"] += 1
             return None
+        placed = None if close_rival else _placed_by_search(
+            reg.covariance, grid, _within(all_points, GRID_RADIUS), reg.pose)
+        if placed is not None:
+            # No pose elsewhere in the window comes near the peak, along the corridor's axis
+            # either: the submap's doors and ends place the scan there, to the search's cell.
+            reg = replace(reg, covariance=placed)
+            self.stats["loop searches placed along a corridor"] += 1
         self.stats["loop searches found"] += 1
         return Find(mid, reg, best.score, ratio, math.nan)
+
+
+def _placed_by_search(cov: FloatArray, grid: SearchGrid, points: FloatArray,
+                      pose: FloatArray) -> FloatArray | None:
+    """The covariance of a find whose peak is unique in its window, from the lines'
+    covariance ``cov``: along the directions the lines leave free, the search's cell (the
+    truth within half a cell of the peak's centre). None when the lines leave no direction
+    free, or when along one the peak is a ridge: ``points`` at ``pose`` moved that way keep
+    :data:`MAX_RATIO` of its score as far as :data:`SEPARATION_XY` to one side (the rival
+    search, which looks only farther away, cannot tell such a ridge from a peak)."""
+    vals, vecs = np.linalg.eigh(cov)
+    free = vals >= FREE_VARIANCE
+    if not free.any():
+        return None
+    peak = grid.score(points, pose)
+    steps = np.arange(1, math.ceil(SEPARATION_XY / RESOLUTION - 1e-9) + 1) * RESOLUTION
+    for k in np.flatnonzero(free):
+        v = vecs[:, k] / max(float(np.hypot(vecs[0, k], vecs[1, k])), 1e-9)
+        for side in (1.0, -1.0):  # ten poses at most, and only for a find
+            if all(grid.score(points, pose + side * t * v) >= MAX_RATIO * peak for t in steps):
+                return None
+    return (vecs * np.where(free, (0.5 * RESOLUTION) ** 2, vals)) @ vecs.T
 
 
 def _distinct(pose: FloatArray, reg: Registration) -> bool:
@@ -207,8 +240,13 @@ def _rivals(grid: SearchGrid, all_points: FloatArray, best: Match, rival: Match)
     """Whether ``rival`` still scores :data:`MAX_RATIO` of ``best`` with every live point in
     the grid's reach: the near points searched with may show only a corridor both poses fit,
     while the far ones (ACES's beams reach 50 m) see where along it the robot is."""
-    far = all_points[np.hypot(all_points[:, 0], all_points[:, 1]) <= GRID_RADIUS]
+    far = _within(all_points, GRID_RADIUS)
     return grid.score(far, rival.pose) >= MAX_RATIO * grid.score(far, best.pose)
+
+
+def _within(points: FloatArray, reach: float) -> FloatArray:
+    """The points within ``reach`` of their frame's origin."""
+    return points[np.hypot(points[:, 0], points[:, 1]) <= reach]
 
 
 def _live_points(frame: ScanFrame) -> FloatArray:
