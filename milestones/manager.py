@@ -353,10 +353,15 @@ class MilestoneManager:
         if len(rows) == 0:
             return None
         rows = self._shortlist(sig, rows)
+        return (rows, *self._exact(sig, rows))
+
+    def _exact(self, sig: FloatArray, rows: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
+        """The method's heading search against the stored rows ``rows``: scores and refined
+        shifts (in samples)."""
         stored = self.method.encode(self._sigs.view[rows].astype(np.float64))
         m = self.method.search(sig, stored, max_shift=self._max_shift(),
                                min_overlap=MIN_OVERLAP, circular=self.circular)
-        return rows, m.score, m.refined
+        return m.score, m.refined
 
     def query(self, ranges: NDArray, angle_min: float, angle_increment: float,
               max_range: float, predicted_pose: FloatArray | None = None,
@@ -419,12 +424,9 @@ class MilestoneManager:
         if len(ids) == 0 or not self._has_returns(ranges, max_range):
             return []
         sig = self.signature(ranges, angle_min, angle_increment, max_range)
-        rows = np.searchsorted(self.ids, ids)
-        stored = self.method.encode(self._sigs.view[rows].astype(np.float64))
-        m = self.method.search(sig, stored, max_shift=self._max_shift(),
-                               min_overlap=MIN_OVERLAP, circular=self.circular)
-        scores = np.maximum(m.score, 0.0)
-        offsets = (m.refined * self.step + np.pi) % (2 * np.pi) - np.pi
+        score, shifts = self._exact(sig, np.searchsorted(self.ids, ids))
+        scores = np.maximum(score, 0.0)
+        offsets = (shifts * self.step + np.pi) % (2 * np.pi) - np.pi
         order = np.argsort(scores, kind="stable")
         return [(int(ids[k]), float(scores[k]), float(offsets[k])) for k in order]
 

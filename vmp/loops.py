@@ -186,7 +186,8 @@ class LoopSearch:
         rival = search(grid, points, center, wxy, wth, MAX_RATIO * best.score,
                        exclude=(best.pose, SEPARATION_XY, SEPARATION_THETA))
         ratio = 0.0 if rival is None else rival.score / best.score
-        close_rival = rival is not None and _rivals(grid, all_points, best, rival)
+        far = _within(all_points, GRID_RADIUS)
+        close_rival = rival is not None and _rivals(grid, far, best, rival)
         if close_rival and _distinct(rival.pose, reg):
             # Another pose fits about as well, with the near points searched with and with
             # all of them, and the refined fit can tell the two apart: which one is right is
@@ -194,8 +195,7 @@ class LoopSearch:
             # is the same answer: the edge leaves that direction free.)
             self.stats["loop searches ambiguous"] += 1
             return None
-        placed = None if close_rival else _placed_by_search(
-            reg.covariance, grid, _within(all_points, GRID_RADIUS), reg.pose)
+        placed = None if close_rival else _placed_by_search(reg.covariance, grid, far, reg.pose)
         if placed is not None:
             # No pose elsewhere in the window comes near the peak, along the corridor's axis
             # either: the submap's doors and ends place the scan there, to the search's cell.
@@ -236,11 +236,10 @@ def _distinct(pose: FloatArray, reg: Registration) -> bool:
         return False
 
 
-def _rivals(grid: SearchGrid, all_points: FloatArray, best: Match, rival: Match) -> bool:
-    """Whether ``rival`` still scores :data:`MAX_RATIO` of ``best`` with every live point in
-    the grid's reach: the near points searched with may show only a corridor both poses fit,
-    while the far ones (ACES's beams reach 50 m) see where along it the robot is."""
-    far = _within(all_points, GRID_RADIUS)
+def _rivals(grid: SearchGrid, far: FloatArray, best: Match, rival: Match) -> bool:
+    """Whether ``rival`` still scores :data:`MAX_RATIO` of ``best`` with ``far``, every live
+    point in the grid's reach: the near points searched with may show only a corridor both
+    poses fit, while the far ones (ACES's beams reach 50 m) see where along it the robot is."""
     return grid.score(far, rival.pose) >= MAX_RATIO * grid.score(far, best.pose)
 
 

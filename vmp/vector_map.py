@@ -144,7 +144,7 @@ class VectorMap:
             grow.a = np.array(arr, dtype=grow.a.dtype, copy=True)
             grow.n = len(arr)
         seg = self.segments
-        self.segment_start = [int(np.searchsorted(seg, g)) for g in range(len(segment_anchor))]
+        self.segment_start = np.searchsorted(seg, np.arange(len(segment_anchor))).tolist()
         self._by_anchor = {}
         for g, a in enumerate(self.segment_anchor):
             self._by_anchor.setdefault(a, []).append(g)
