@@ -10,6 +10,7 @@ Entities (the 2D view shows everything logged up to the time cursor):
 * ``/world/robot``: the robot now (static: only the latest is kept), ``/world/matches``: an
   arrow from the robot to each milestone matched this scan, green accepted, red rejected;
 * ``/world/milestones``: labelled points; ``/world/grid``: the occupancy grid image;
+* ``/world/hypotheses``: localizing in a saved map, the places followed after each scan;
 * ``/metrics/*``: innovation, match score, covariance trace; ``/log``: events.
 
 Timelines: ``scan`` (index) and ``sensor_time``.
@@ -67,6 +68,7 @@ class RerunView:
         self._matches: list[tuple[np.ndarray, np.ndarray, bool, str]] = []
         self._matches_at: np.ndarray | None = None
         self._now = (0, 0.0)
+        self._state = ""  # the last localization state shown
         self.rec.log("/world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
         for name, color in COLORS.items():
             self.rec.log(f"/world/path/{name}", rr.Points2D.from_fields(colors=[color],
@@ -181,6 +183,29 @@ class RerunView:
         self._milestones.update({i: np.asarray(p) for i, p in by_id.items()})
         self._log_milestones()
         self.event(f"milestone graph adjusted: {len(by_id)} milestones moved")
+
+    def saved_milestones(self, ids: np.ndarray, poses: np.ndarray) -> None:
+        self._milestones = {int(i): np.asarray(p, dtype=np.float64)
+                            for i, p in zip(ids, poses, strict=True)}
+        self._log_milestones()
+
+    def localization(self, index: int, stamp: float, state: str, pose: np.ndarray | None,
+                     hypotheses: np.ndarray, true_pose: np.ndarray | None) -> None:
+        """A scan localized in a saved map: the pose when localized, every place followed
+        (``/world/hypotheses``) and the state's changes in the log."""
+        self._now = (index, stamp)
+        if state != self._state:
+            self._state = state
+            self.event(f"scan {index}: {state}", "INFO" if state == "localized" else "WARN")
+        if pose is not None:
+            self._add("/world/path/estimate", index, stamp, pose[None, :2])
+            self._robot = np.asarray(pose, dtype=np.float64).copy()
+        if true_pose is not None:
+            self._add("/world/path/truth", index, stamp, true_pose[None, :2])
+        self._add("/world/hypotheses", index, stamp, np.asarray(hypotheses)[:, :2])
+        self._pending += 1
+        if self._pending >= self.flush_every:
+            self.flush()
 
     def event(self, text: str, level: str = "INFO") -> None:
         index, stamp = self._now

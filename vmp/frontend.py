@@ -35,6 +35,8 @@ class FrontEnd:
         self._last_odom: FloatArray | None = None  # the odometry of the scan before
         # Motion noise since the last anchor correction: how far a correction may move.
         self.motion_since_fix = np.zeros((3, 3))
+        # The last increment (scanner frame) and its covariance; zero before the second scan.
+        self.increment: tuple[FloatArray, FloatArray] = (np.zeros(3), np.zeros((3, 3)))
 
     def predict(self, frame: ScanFrame) -> None:
         """Move the filter to this scan (the first scan starts it at its odometry)."""
@@ -53,6 +55,7 @@ class FrontEnd:
                     self._odom_offset = compose(self.odom_pose, inverse(odom))
                 self.odom_pose = compose(self._odom_offset, odom)
             u, q = self.scan_odometry.increment(frame.points(), wheel)
+            self.increment = (u, q)
             self.filter.predict(u, q)
             self.motion_since_fix = self.motion_since_fix + rotate_covariance(
                 q, self.filter.pose[2])

@@ -25,7 +25,7 @@ from vmp.errors import InputError
 from vmp.pipeline import Pipeline
 from vmp.progress import Progress
 from vmp.results import Result
-from vmp.source import Reference, Source
+from vmp.source import Source, reference_for
 from vmp.view import View
 
 __all__ = ["MappingRun", "stop_on_signals"]
@@ -117,15 +117,5 @@ class MappingRun:
         trajectory = pipeline.trajectory()
         elapsed = time.perf_counter() - started
         return Result(self.label, self.config, pipeline, np.array(stamps), trajectory,
-                      np.array(online), np.array(odometry), self._reference(len(stamps)),
+                      np.array(online), np.array(odometry), reference_for(self.source, len(stamps)),
                       self.source.report(), elapsed, self.interrupted)
-
-    def _reference(self, scans: int) -> Reference | None:
-        """The source's reference poses for the mapped scans (None unless it has one each)."""
-        ref = self.source.reference()
-        # Poses paired by order must be one per scan; stamped ones may go on beyond the run.
-        if ref is None or len(ref.poses) < scans or (ref.stamps is None
-                                                      and len(ref.poses) != scans):
-            return None
-        return Reference(ref.poses[:scans], ref.label, ref.truth,
-                         None if ref.stamps is None else ref.stamps[:scans])

@@ -17,7 +17,8 @@ import numpy as np
 
 from vmp.types import BeamGeometry, FloatArray, ScanFrame
 
-__all__ = ["FrameList", "Reference", "Source", "SourceReport", "stack_reference"]
+__all__ = ["FrameList", "Reference", "Source", "SourceReport", "reference_for",
+           "stack_reference"]
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,18 @@ def stack_reference(poses: list[FloatArray], label: str, truth: bool,
         return None
     return Reference(np.array(poses, dtype=np.float64).reshape(-1, 3), label, truth,
                      None if stamps is None else np.array(stamps, dtype=np.float64))
+
+
+def reference_for(source: Source, scans: int) -> Reference | None:
+    """The source's reference poses for its first ``scans`` frames (None unless it has one
+    each)."""
+    ref = source.reference()
+    # Poses paired by order must be one per scan; stamped ones may go on beyond the run.
+    if ref is None or len(ref.poses) < scans or (ref.stamps is None
+                                                  and len(ref.poses) != scans):
+        return None
+    return Reference(ref.poses[:scans], ref.label, ref.truth,
+                     None if ref.stamps is None else ref.stamps[:scans])
 
 
 class FrameList:

@@ -30,6 +30,14 @@ class View(Protocol):
 
     def event(self, text: str, level: str = "INFO") -> None: ...
 
+    def saved_milestones(self, ids: FloatArray, poses: FloatArray) -> None:
+        """The milestones of a saved map being localized in."""
+
+    def localization(self, index: int, stamp: float, state: str, pose: FloatArray | None,
+                     hypotheses: FloatArray, true_pose: FloatArray | None) -> None:
+        """A scan localized in a saved map: the state, the pose (when localized) and every
+        place followed ``(H, 3)``, in the saved map's frame."""
+
     def grid(self, cells: FloatArray, resolution: float, origin: tuple[float, float]) -> None: ...
 
     def hold(self) -> None:
@@ -58,6 +66,12 @@ class NullView:
         pass
 
     def event(self, text, level="INFO") -> None:
+        pass
+
+    def saved_milestones(self, ids, poses) -> None:
+        pass
+
+    def localization(self, index, stamp, state, pose, hypotheses, true_pose) -> None:
         pass
 
     def grid(self, cells, resolution, origin) -> None:

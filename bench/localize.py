@@ -1,0 +1,204 @@
+"""Localization in a saved map, from no initial pose: simulated worlds and real logs.
+
+Run: python bench/localize.py [--sim office warehouse lab corridor] [--runs 20] [--no-real]
+     python bench/localize.py --no-sim --only intel
+
+Simulated: each scenario is mapped with its own seed; then, in each of ``--runs`` runs with
+another seed (100, 101, ...), the localizer starts with no pose at a random scan of that run,
+follows it for 150 scans, is carried to another random place (3 m or more away; the odometry
+does not see it) and follows 150 scans more. Per scenario: the runs localized within 30 scans of
+the start and of the kidnap, the median scans it took, wrong fixes (declared localized more than
+0.5 m from the truth), the scans still localized at the old place after the kidnap (before the
+scans stop fitting there), and the scans ambiguous.
+
+Real (every log in ../shared/data with a relations file): the first half of the log is mapped,
+the second half localized in that map from no pose, and scored on the relations whose two
+stamps both lie in the second half, beside the whole log mapped in one go on the same
+relations. Also the tracking speed against the mapping speed (scans per second of each run
+loop, the full mapping run's).
+
+Writes the tables into docs/benchmarks.md (only when run on everything).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from kummerle import logs
+from report import machine, write_section
+
+from drivers import open_source
+from drivers.splice import carried
+from vmp.evaluate import read_relations, relation_error
+from vmp.localization import WRONG_FIX, LocalizationResult, LocalizationRun
+from vmp.localizer import State
+from vmp.mapfile import MapData
+from vmp.results import Result
+from vmp.run import MappingRun
+from vmp.source import FrameList, Reference
+
+STRETCH = 150  # scans before and after the kidnap
+WITHIN = 30  # the goal: localized within this many scans of a start or a kidnap
+CARRIED = 3.0  # the kidnap carries the robot at least this far (m)
+SIM = ("office", "warehouse", "lab", "corridor")
+
+
+def saved(result: Result) -> MapData:
+    """A mapping run's map as a saved one (what ``map.vmpmap`` holds)."""
+    p = result.pipeline
+    return MapData(p.map, p.milestones, p.back.graph, {}, result.stamps, result.trajectory)
+
+
+def recovery(res: LocalizationResult, start: int, stop: int) -> int | None:
+    """Scans from ``start`` to the first scan before ``stop`` localized near the truth."""
+    err = res.errors()
+    for k in range(start, stop):  # a few dozen at most
+        if res.states[k] is State.LOCALIZED and err[k] <= WRONG_FIX:
+            return k - start
+    return None
+
+
+def sim_run(name: str, smap: MapData, seed: int) -> dict:
+    sim = open_source(name, seed=seed)
+    frames = list(sim)
+    truth = sim.reference().poses
+    n = len(frames)
+    rng = np.random.default_rng(seed)
+    a = int(rng.integers(0, n - STRETCH))
+    end = truth[a + STRETCH - 1]
+    far = np.flatnonzero(np.hypot(*(truth[: n - STRETCH, :2] - end[:2]).T) >= CARRIED)
+    b = int(rng.choice(far))
+    joined = carried([frames[a:a + STRETCH], frames[b:b + STRETCH]])
+    ref = Reference(np.vstack([truth[a:a + STRETCH], truth[b:b + STRETCH]]), "ground truth",
+                    True)
+    res = LocalizationRun(smap, FrameList(joined, name, ref)).run()
+    err = res.errors()
+    loc = res.localized
+    starts = np.flatnonzero(loc & ~np.concatenate([[False], loc[:-1]]))
+    after = np.arange(res.scans) >= STRETCH
+    return {"seed": seed, "start": recovery(res, 0, STRETCH),
+            "kidnap": recovery(res, STRETCH, 2 * STRETCH),
+            "wrong": int((err[starts] > WRONG_FIX).sum()),
+            "stale": int((loc & after & (err > WRONG_FIX)).sum()),
+            "ambiguous": sum(s is State.AMBIGUOUS for s in res.states),
+            "rate": res.scans / res.time}
+
+
+def simulated(names: list[str], runs: int) -> list[dict]:
+    rows = []
+    for name in names:
+        smap = saved(MappingRun(open_source(name)).run())
+        results = [sim_run(name, smap, 100 + i) for i in range(runs)]
+        both = [r["start"] for r in results] + [r["kidnap"] for r in results]
+        ok = [k for k in both if k is not None and k <= WITHIN]
+        took = [k for k in both if k is not None]
+        row = {"name": name, "runs": runs, "within": len(ok), "of": len(both),
+               "median": statistics.median(took) if took else math.nan,
+               "never": sum(k is None for k in both),
+               "wrong": sum(r["wrong"] for r in results),
+               "stale": statistics.median(r["stale"] for r in results),
+               "ambiguous": sum(r["ambiguous"] for r in results),
+               "rate": statistics.median(r["rate"] for r in results)}
+        print(f"{name}: {row['within']} of {row['of']} starts and kidnaps localized within "
+              f"{WITHIN} scans (median {row['median']}, never {row['never']}); wrong fixes "
+              f"{row['wrong']}; scans at the old place after a kidnap (median) {row['stale']}; "
+              f"ambiguous scans {row['ambiguous']}; {row['rate']:.0f} scans/s", flush=True)
+        rows.append(row)
+    return rows
+
+
+def real(only: str | None) -> list[dict]:
+    rows = []
+    for name, log, rel_path in logs():
+        if only not in (None, name):
+            continue
+        frames = list(open_source(str(log)))
+        half = len(frames) // 2
+        relations = read_relations(rel_path)
+        t0 = frames[half].stamp
+        inside = relations[(np.minimum(relations[:, 0], relations[:, 1]) >= t0)]
+        full = MappingRun(FrameList(frames, name)).run()
+        first = MappingRun(FrameList(frames[:half], name)).run()
+        res = LocalizationRun(saved(first), FrameList(frames[half:], name)).run()
+        loc = res.localized
+        e_full = relation_error(full.stamps, full.trajectory, inside)
+        e_loc = relation_error(res.stamps[loc], res.poses[loc], inside)
+        first_fix = int(np.argmax(loc)) if loc.any() else None
+        map_rate = full.scans / full.mapping_time
+        row = {"name": name, "scans": res.scans, "first": first_fix, "share": float(loc.mean()),
+               "lost": sum(s is State.LOST for s in res.states), "relations": len(inside),
+               "used": e_loc.used, "loc": e_loc, "full": e_full,
+               "rate": res.scans / res.time, "map_rate": map_rate}
+        print(f"{name}: second half ({res.scans} scans) localized after {first_fix} scans, "
+              f"{row['share']:.1%} of scans localized, {row['lost']} lost; relations in the "
+              f"second half: localized {e_loc.trans_mean:.4f} m, "
+              f"{math.degrees(e_loc.rot_mean):.2f} deg on {e_loc.used} of {len(inside)}; "
+              f"whole log mapped {e_full.trans_mean:.4f} m, {math.degrees(e_full.rot_mean):.2f} "
+              f"deg on {e_full.used}; tracking {row['rate']:.0f} scans/s, mapping "
+              f"{map_rate:.0f} scans/s (x{row['rate'] / map_rate:.1f})", flush=True)
+        rows.append(row)
+    return rows
+
+
+def table(sim: list[dict], rows: list[dict], runs: int) -> str:
+    lines = ["## Localization in a saved map", "",
+             f"`python bench/localize.py` on {machine()}, default configuration, no initial "
+             "pose.", ""]
+    if sim:
+        lines += [f"Simulated: per scenario {runs} runs with seeds 100.., each started at a "
+                  f"random scan and kidnapped after {STRETCH} scans to a random place "
+                  f"{CARRIED:.0f} m or more away (the odometry does not see it). "
+                  "\"Stale\" is the median number of scans still localized at the old place "
+                  "after the kidnap, before the scans stop fitting there.", "",
+                  f"| scenario | localized within {WITHIN} scans (starts + kidnaps) | median "
+                  "scans | never | wrong fixes | stale | ambiguous scans | scans/s |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for r in sim:
+            lines.append(f"| {r['name']} | {r['within']} of {r['of']} | {r['median']} | "
+                         f"{r['never']} | {r['wrong']} | {r['stale']} | {r['ambiguous']} | "
+                         f"{r['rate']:.0f} |")
+        lines.append("")
+    if rows:
+        lines += ["Real: the first half of each log mapped, the second half localized in it "
+                  "from no pose; relations with both stamps in the second half.", "",
+                  "| log | scans until localized | scans localized | lost | relations used | "
+                  "localized: trans (m), rot (deg) | whole log mapped: trans, rot | tracking / "
+                  "mapping speed |", "|---|---|---|---|---|---|---|---|"]
+        for r in rows:
+            a, b = r["loc"], r["full"]
+            lines.append(f"| {r['name']} | {r['first']} | {r['share']:.1%} | {r['lost']} | "
+                         f"{a.used} of {r['relations']} | {a.trans_mean:.4f}, "
+                         f"{math.degrees(a.rot_mean):.2f} | {b.trans_mean:.4f}, "
+                         f"{math.degrees(b.rot_mean):.2f} | x{r['rate'] / r['map_rate']:.1f} "
+                         f"({r['rate']:.0f} / {r['map_rate']:.0f} scans/s) |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sim", nargs="*", default=list(SIM), help="scenarios (default: all four)")
+    ap.add_argument("--runs", type=int, default=20, help="runs per scenario (default 20)")
+    ap.add_argument("--no-sim", action="store_true", help="no simulated runs")
+    ap.add_argument("--no-real", action="store_true", help="no real logs")
+    ap.add_argument("--only", help="only this real log (intel, aces, fr079)")
+    args = ap.parse_args()
+    sim = [] if args.no_sim else simulated(args.sim, args.runs)
+    rows = [] if args.no_real else real(args.only)
+    complete = (not args.no_sim and not args.no_real and args.only is None
+                and set(args.sim) == set(SIM) and args.runs == 20)
+    if complete:
+        write_section("localize", table(sim, rows, args.runs))
+
+
+if __name__ == "__main__":
+    main()

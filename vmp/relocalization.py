@@ -1,0 +1,91 @@
+"""Where in a saved map a scan may have been taken, with no pose to start from.
+
+The milestone signatures propose places: a global query over every stored milestone (any of
+the four comparison methods) gives the few best distinct milestones and, for each, the heading
+offset of the live scan. Each is verified the way the loop search verifies a loop: a
+branch-and-bound search (:mod:`vmp.branch_bound`) of the live scan over the milestone's submap,
+in a window around the node and the signature's heading, then ICP against the submap's points.
+A proposal that scores well and fits closely is a place the robot may be; which of them it is
+the localizer (:mod:`vmp.localizer`) decides over the following scans.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+
+from vmp.branch_bound import search
+from vmp.config import RegistrationConfig
+from vmp.places import Places
+from vmp.registration import MIN_POINTS, Registration, fits, register
+from vmp.types import FloatArray, ScanFrame, compose, relative
+
+__all__ = ["Proposal", "propose"]
+
+CANDIDATES = 4  # distinct places verified per search, best signatures first
+DISTINCT = 1.5  # milestones nearer each other than this are one place (m)
+WINDOW_XY = 2.0  # the search window around the node, either way (m) ...
+WINDOW_THETA = math.radians(20.0)  # ... and around the signature's heading
+MIN_SCORE = 0.55  # mean likelihood of the live points at a proposal
+MAX_SHIFT = 0.3  # ICP may move this far from the search's pose (m) ...
+MAX_TURN = math.radians(5.0)  # ... and turn this much
+LIVE_POINTS = 100  # live points searched with (evenly thinned)
+LIVE_RANGE = 12.0  # live points beyond this range are left out (m)
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """A place the scan may have been taken: its pose in the map frame and the evidence."""
+
+    pose: FloatArray  # (3,) in the map frame
+    milestone: int  # whose submap it was found in
+    score: float  # the search's mean likelihood
+    signature: float  # the signature score of the milestone (lower is better)
+    registration: Registration  # the refinement, in the milestone's frame
+
+
+def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
+            stats: Counter[str], candidates: int = CANDIDATES) -> list[Proposal]:
+    """The verified places of one scan, best signatures first."""
+    points = frame.points()
+    if len(points) < MIN_POINTS:
+        return []
+    ranked = places.milestones.query(frame.ranges, frame.angle_min, frame.angle_increment,
+                                     frame.max_range, max_candidates=4 * candidates)
+    live = _live_points(points)
+    out: list[Proposal] = []
+    chosen: list[FloatArray] = []
+    for cand in ranked:  # a few dozen at most
+        if len(chosen) >= candidates:
+            break
+        if any(math.hypot(*(cand.pose[:2] - p[:2])) < DISTINCT for p in chosen):
+            continue
+        chosen.append(cand.pose)
+        place = places.place(cand.id)
+        if place is None:
+            continue
+        stats["places searched"] += 1
+        center = np.array([0.0, 0.0, cand.heading_offset])
+        best = search(place.grid, live, center, WINDOW_XY, WINDOW_THETA, MIN_SCORE)
+        if best is None:
+            continue
+        reg = register(place.reference, points, best.pose)
+        shift = relative(best.pose, reg.pose)
+        if (not fits(reg, registration) or math.hypot(shift[0], shift[1]) > MAX_SHIFT
+                or abs(shift[2]) > MAX_TURN):
+            continue
+        stats["places verified"] += 1
+        out.append(Proposal(compose(place.pose, reg.pose), cand.id, best.score, cand.score,
+                            reg))
+    return out
+
+
+def _live_points(points: FloatArray) -> FloatArray:
+    """The live points searched with: within :data:`LIVE_RANGE`, evenly thinned."""
+    pts = points[np.hypot(points[:, 0], points[:, 1]) <= LIVE_RANGE]
+    if len(pts) > LIVE_POINTS:
+        pts = pts[np.linspace(0, len(pts) - 1, LIVE_POINTS).round().astype(np.int64)]
+    return pts
