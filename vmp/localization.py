@@ -64,6 +64,11 @@ def open_saved_map(path: str | Path, method: str | None = None) -> MapData:
     return data
 
 
+def _beams(g) -> str:
+    return (f"{g.num_beams} beams from {math.degrees(g.angle_min):.2f} deg every "
+            f"{math.degrees(g.angle_increment):.3f} deg")
+
+
 @dataclass
 class LocalizationResult:
     """What a localization run knew after each scan."""
@@ -151,10 +156,12 @@ class LocalizationRun:
                  view: View | None = None, *, map_path: str = "", scans: int | None = None,
                  initial_pose: FloatArray | None = None, progress: Progress | None = None,
                  label: str | None = None) -> None:
-        if source.geometry != saved.map.geometry:
-            raise InputError(f"{label or source.name}: its beams ({source.geometry}) are not "
-                             f"those of the map ({saved.map.geometry}): localize with the "
-                             "scanner the map was made with")
+        mine, theirs = source.geometry, saved.map.geometry
+        if (mine.num_beams, mine.angle_min, mine.angle_increment) != (
+                theirs.num_beams, theirs.angle_min, theirs.angle_increment):
+            raise InputError(f"{label or source.name}: {_beams(mine)}, the map's scanner "
+                             f"{_beams(theirs)}: localize with the scanner the map was made "
+                             "with")
         self.saved, self.source = saved, source
         self.config = config or MappingConfig()
         self.view: View = view or NullView()

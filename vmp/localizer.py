@@ -4,24 +4,32 @@ Every scan, each hypothesis of where the robot is (a pose filter of its own) mov
 odometry increment (:mod:`vmp.frontend`) and is registered against the submap of the saved
 milestone nearest it (:mod:`vmp.places`): a close fit within its filter's gate corrects it, a
 scan without one is a miss. Until one hypothesis is trusted, the milestone signatures propose
-places every few scans (:mod:`vmp.relocalization`); a proposal that agrees with a hypothesis
-is one more find for it, any other starts a new one.
+places every few scans (:mod:`vmp.relocalization`), each search leaving out the places already
+followed, so that search after search goes farther down the signatures' list: a place that
+looks like the right one must not win only because the right one was never looked at.
 
 How well a scan fits a hypothesis is the mean likelihood of its points in the submap's search
 grid at the registered pose (the branch-and-bound score). A scan fits when ICP fits closely,
 within the hypothesis's gate, and it scores at least :data:`KEEP_RATIO` of what the hypothesis
 usually scores (a robot carried to a look-alike corridor still registers against the old
-one's walls, but its doors and ends no longer score). The robot is localized on a hypothesis
-found :data:`MIN_FINDS` times that fits now, while no other place that fits scores within
-:data:`RIVAL_RATIO` of it over the last few scans (then it is ambiguous: a corridor's
-pilasters all look alike, and the right one cannot be told from the others). In the
+one's walls, but its doors and ends no longer score). The robot is localized on the
+hypothesis that fits now and scores best over the last :data:`WINDOW` scans, once it has
+fitted :data:`MIN_FITS` scans and outlived :data:`MIN_SEARCHES` searches for other places,
+while no other place followed explains the scans about as well: leaves unexplained (one
+minus its score) less than :data:`RIVAL_FACTOR` times the best's share plus
+:data:`RIVAL_MARGIN` (then it is ambiguous:
+in a corridor seen only to 8 m, or one whose pilasters all look alike, the right place cannot
+be told from the others until the robot sees something that tells them apart). In the
 simulated office the right place scores 0.998 (median; 0.98 at the tenth percentile), wrong
-ones that ICP still fits 0.67 (0.84 at the ninetieth). It stays localized while
-the scans fit; after :data:`LOST_AFTER` misses in a row it is lost: the hypothesis keeps
-moving with odometry (the robot may just be looking into a room the map never saw) and takes
-over again when the scans fit again, while the search looks for the place anew (the robot may
-have been carried elsewhere, the kidnapped robot), and a place it finds often enough, that
-fits, takes over.
+ones that ICP still fits 0.67 (0.84 at the ninetieth), but other stretches of corridor seen
+only to 8 m up to 0.976 over twenty scans: a ratio of scores cannot tell them apart, the
+share of points left unexplained can (0.001 against 0.024).
+
+It stays localized while the scans fit; after :data:`LOST_AFTER` misses in a row it is lost:
+the hypothesis keeps moving with odometry (the robot may just be looking into a room the map
+never saw) and takes over again when the scans fit again, while the search looks for the
+place anew (the robot may have been carried elsewhere, the kidnapped robot), and a place
+found that way takes over as above.
 """
 
 from __future__ import annotations
@@ -43,17 +51,21 @@ from vmp.types import FloatArray, ScanFrame, compose, relative, rotate_covarianc
 
 __all__ = ["Hypothesis", "Localizer", "State"]
 
-MIN_FINDS = 3  # proposals that must agree on a place before it is trusted
+MIN_SEARCHES = 3  # searches for other places a hypothesis must outlive to be trusted ...
+MIN_FITS = 5  # ... and scans it must have fitted
 SEARCH_EVERY = 2  # scans between searches while not localized
 LOST_AFTER = 3  # misses in a row after which the robot is lost
 DROP_AFTER = 3  # misses in a row after which an untrusted hypothesis is dropped
 DEAD_RECKONING = 100  # misses in a row after which a trusted one is dropped too
 SAME_XY = 0.3  # a proposal this near a hypothesis (m) ...
 SAME_THETA = math.radians(5.0)  # ... and turned this little agrees with it
-MAX_HYPOTHESES = 8  # the most places followed at once (fewest finds dropped)
-WINDOW = 10  # scans over which hypotheses are compared
+MAX_HYPOTHESES = 8  # the most places followed at once (the lowest scores dropped)
+WINDOW = 20  # scans over which hypotheses are compared
 KEEP_RATIO = 0.8  # a scan scoring less than this share of a hypothesis's usual is a miss
-RIVAL_RATIO = 0.9  # a place scoring this share of the best's is a rival
+# A place is a rival of the best when it leaves fewer than this many times the share of the
+# scans' points the best leaves unexplained (1 - score), plus this share.
+RIVAL_FACTOR = 2.0
+RIVAL_MARGIN = 0.02
 REACH = 20.0  # live points scored: within this range (the submaps' reach, m)
 # How well a proposal's pose is known when a hypothesis starts from it (m, m, rad).
 PROPOSAL_SIGMA = (0.1, 0.1, math.radians(2.0))
@@ -70,15 +82,14 @@ class State(Enum):
 
 @dataclass
 class Hypothesis:
-    """A place the robot may be: its filter, how often the search found it, its fits."""
+    """A place the robot may be: its filter, how it has fitted, what it has outlived."""
 
     filter: PoseFilter
-    finds: int = 1
+    searches: int = 0  # searches for other places since it was proposed
     misses: int = 0  # scans in a row that did not fit
     fits: int = 0  # scans that fitted
-    trusted: bool = False  # the localizer has declared it
-    since: int = 0  # the scan it was first proposed at
-    history: list[int] = field(default_factory=list)  # milestones it was found at
+    trusted: bool = False  # the localizer has declared it, and it has not been lost since
+    declared: bool = False  # the localizer has declared it once (it may dead-reckon)
     scores: deque[float] = field(default_factory=lambda: deque(maxlen=WINDOW))  # 0: a miss
     fitted: deque[float] = field(default_factory=lambda: deque(maxlen=2 * WINDOW))
 
@@ -120,11 +131,11 @@ class Localizer:
         self.scan = -1
         self._last_search = -SEARCH_EVERY
         self.state = State.SEARCHING
-        if initial_pose is not None:
-            h = self._start(np.asarray(initial_pose, dtype=np.float64),
-                            np.diag([0.3**2, 0.3**2, math.radians(10.0) ** 2]), 0)
-            h.finds = MIN_FINDS
-            self.hypotheses.append(h)
+        self._lost = False  # localized once, and the scans stopped fitting
+        if initial_pose is not None:  # one more place to follow, judged like the others
+            self.hypotheses.append(self._start(
+                np.asarray(initial_pose, dtype=np.float64),
+                np.diag([0.3**2, 0.3**2, math.radians(10.0) ** 2])))
 
     def step(self, frame: ScanFrame) -> Step:
         """Move, verify and decide for one scan."""
@@ -138,13 +149,16 @@ class Localizer:
         proposals: list[Proposal] = []
         if self._searching() and self.scan - self._last_search >= SEARCH_EVERY:
             self._last_search = self.scan
-            proposals = propose(self.places, frame, self.config.registration, self.stats)
+            for h in self.hypotheses:
+                h.searches += 1
+            proposals = propose(self.places, frame, self.config.registration, self.stats,
+                                [h.pose for h in self.hypotheses])
             for p in proposals:
                 self._add(p)
         self._prune()
         self.state = self._decide()
         self.stats[f"scans {self.state.value}"] += 1
-        ranked = sorted(self.hypotheses, key=lambda h: (-h.trusted, -h.finds, h.misses))
+        ranked = sorted(self.hypotheses, key=lambda h: (-h.trusted, -h.score))
         trusted = self._trusted()
         pose = (trusted.pose.copy() if self.state is State.LOCALIZED and trusted is not None
                 else None)
@@ -152,8 +166,8 @@ class Localizer:
 
     # ---- hypotheses ------------------------------------------------------------------------
 
-    def _start(self, pose: FloatArray, cov: FloatArray, finds: int) -> Hypothesis:
-        return Hypothesis(PoseFilter(pose, cov, self.config.motion), finds, since=self.scan)
+    def _start(self, pose: FloatArray, cov: FloatArray) -> Hypothesis:
+        return Hypothesis(PoseFilter(pose, cov, self.config.motion))
 
     def _track(self, h: Hypothesis, points: FloatArray) -> None:
         """Register the scan where ``h`` puts it; a fit within its gate corrects it."""
@@ -179,29 +193,23 @@ class Localizer:
             h.scores.append(0.0)
 
     def _add(self, p: Proposal) -> None:
-        """A proposal is one more find for the hypothesis it agrees with, or a new one."""
-        for h in self.hypotheses:
-            d = relative(h.pose, p.pose)
-            if math.hypot(d[0], d[1]) <= SAME_XY and abs(d[2]) <= SAME_THETA:
-                h.finds += 1
-                h.history.append(p.milestone)
-                return
+        """A proposal is a new place to follow, unless one followed is already there."""
+        if any(_same(h.pose, p.pose) for h in self.hypotheses):
+            return
         cov = rotate_covariance(np.diag(np.square(PROPOSAL_SIGMA)), p.pose[2])
-        h = self._start(p.pose, cov, 1)
-        h.history.append(p.milestone)
+        h = self._start(p.pose, cov)
         h.scores.append(p.score)
         h.fitted.append(p.score)
         self.hypotheses.append(h)
 
     def _prune(self) -> None:
-        """Drop hypotheses that stopped fitting, merge ones that met, keep the best few."""
+        """Drop hypotheses that stopped fitting and ones that met a better one; keep the
+        best few."""
         keep: list[Hypothesis] = []
-        for h in sorted(self.hypotheses, key=lambda h: (-h.trusted, -h.finds, h.misses)):
-            if h.misses > (DEAD_RECKONING if h.trusted else DROP_AFTER):
+        for h in sorted(self.hypotheses, key=lambda h: (-h.trusted, -h.score)):
+            if h.misses > (DEAD_RECKONING if h.declared else DROP_AFTER):
                 continue
-            same = next((k for k in keep if _same(k.pose, h.pose)), None)
-            if same is not None:
-                same.finds += h.finds if not h.trusted else 0
+            if any(_same(k.pose, h.pose) for k in keep):
                 continue
             keep.append(h)
         self.hypotheses = keep[:MAX_HYPOTHESES]
@@ -220,23 +228,37 @@ class Localizer:
         trusted = self._trusted()
         if trusted is not None and trusted.misses < LOST_AFTER:
             return State.LOCALIZED
-        # Not localized (or lost): a hypothesis found often enough that fits now, with no
-        # other about as well supported that fits too, is the place.
-        fitting = [h for h in self.hypotheses if h.misses == 0 and h is not trusted]
+        if trusted is not None:
+            # Lost: the place must win again against the others, as at the start (a robot
+            # carried to a look-alike place may fit the old one again).
+            trusted.trusted = False
+            trusted.searches = 0
+            trusted = None
+            self._lost = True
+        # Not localized (or lost): the best-scoring hypothesis that fits now, has fitted and
+        # outlived enough searches, with no other scoring near it, is the place.
+        waiting = State.LOST if self._lost else State.SEARCHING
+        others = self.hypotheses
+        fitting = [h for h in others if h.misses == 0]
         if not fitting:
-            return State.SEARCHING if trusted is None else State.LOST
+            return waiting
         best = max(fitting, key=lambda h: h.score)
-        rivals = [h for h in fitting if h is not best and h.score >= RIVAL_RATIO * best.score]
-        if best.finds < MIN_FINDS:
-            return State.SEARCHING if trusted is None else State.LOST
-        if rivals:
+        if any(h is not best and _rival(h, best) for h in others):
             return State.AMBIGUOUS
+        if best.searches < MIN_SEARCHES or best.fits < MIN_FITS:
+            return waiting
         # The others are dropped: while localized nothing proposes places, so none of them
         # could gain a find, and following them would cost a registration a scan each.
-        best.trusted = True
+        best.trusted = best.declared = True
+        self._lost = False
         self.hypotheses = [best]
         self.stats["times localized"] += 1
         return State.LOCALIZED
+
+
+def _rival(h: Hypothesis, best: Hypothesis) -> bool:
+    """Whether ``h`` explains the scans about as well as ``best``."""
+    return 1.0 - h.score < RIVAL_FACTOR * (1.0 - best.score) + RIVAL_MARGIN
 
 
 def _same(a: FloatArray, b: FloatArray) -> bool:

@@ -25,7 +25,8 @@ from vmp.types import FloatArray, ScanFrame, compose, relative
 
 __all__ = ["Proposal", "propose"]
 
-CANDIDATES = 4  # distinct places verified per search, best signatures first
+CANDIDATES = 4  # distinct places verified per search, best signatures first ...
+SHORTLIST = 32  # ... from this many milestones of the signature query
 DISTINCT = 1.5  # milestones nearer each other than this are one place (m)
 WINDOW_XY = 2.0  # the search window around the node, either way (m) ...
 WINDOW_THETA = math.radians(20.0)  # ... and around the signature's heading
@@ -48,13 +49,16 @@ class Proposal:
 
 
 def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
-            stats: Counter[str], candidates: int = CANDIDATES) -> list[Proposal]:
-    """The verified places of one scan, best signatures first."""
+            stats: Counter[str], known: list[FloatArray] = (),
+            candidates: int = CANDIDATES) -> list[Proposal]:
+    """The verified places of one scan, best signatures first, leaving out the milestones
+    whose search window holds one of the ``known`` poses (map frame): the places already
+    followed, so that search after search looks farther down the signatures' list."""
     points = frame.points()
     if len(points) < MIN_POINTS:
         return []
     ranked = places.milestones.query(frame.ranges, frame.angle_min, frame.angle_increment,
-                                     frame.max_range, max_candidates=4 * candidates)
+                                     frame.max_range, max_candidates=SHORTLIST)
     live = _live_points(points)
     out: list[Proposal] = []
     chosen: list[FloatArray] = []
@@ -62,6 +66,8 @@ def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
         if len(chosen) >= candidates:
             break
         if any(math.hypot(*(cand.pose[:2] - p[:2])) < DISTINCT for p in chosen):
+            continue
+        if any(_covers(cand.pose, cand.heading_offset, p) for p in known):
             continue
         chosen.append(cand.pose)
         place = places.place(cand.id)
@@ -81,6 +87,13 @@ def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
         out.append(Proposal(compose(place.pose, reg.pose), cand.id, best.score, cand.score,
                             reg))
     return out
+
+
+def _covers(node: FloatArray, offset: float, pose: FloatArray) -> bool:
+    """Whether the search window around ``node`` turned by ``offset`` holds ``pose``."""
+    turn = (pose[2] - node[2] - offset + math.pi) % (2 * math.pi) - math.pi
+    return math.hypot(pose[0] - node[0], pose[1] - node[1]) <= WINDOW_XY and \
+        abs(turn) <= WINDOW_THETA
 
 
 def _live_points(points: FloatArray) -> FloatArray:

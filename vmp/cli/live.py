@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from vmp.cli.args import positive_float, positive_int
 from vmp.cli.common import add_run_options, map_and_write, mapping_config
 from vmp.errors import InputError
 from vmp.results import new_results_dir
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_live_options", "add_parser", "open_live_source", "run"]
 
 EPILOG = """\
 examples:
@@ -33,50 +34,63 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "served on a pseudo-terminal. Shows scans, rate and link errors while it runs and "
         "writes the same results folder as 'vmp map', plus the raw recording.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    lv.add_argument("--driver", required=True, choices=["sick", "rplidar", "hokuyo"],
-                    help="scanner protocol")
-    where = lv.add_mutually_exclusive_group(required=True)
-    where.add_argument("--port", help="serial device (e.g. /dev/ttyUSB0) or pyserial URL")
-    where.add_argument("--simulate", metavar="SCENARIO",
-                       help="serve a simulated device streaming this scenario on a pty")
-    lv.add_argument("--baud", type=positive_int, help="working baud rate (SICK: 9600, 19200, "
-                    "38400 or 500000; default 38400)")
-    lv.add_argument("--odometry", metavar="FEED", help="JSON-lines pose feed to read odometry "
-                    "from (serial port, named pipe or file)")
-    lv.add_argument("--no-odometry", action="store_true",
-                    help="with --simulate: no simulated pose feed (registration only)")
-    lv.add_argument("--scans", type=positive_int, help="stop after this many mapped scans")
-    lv.add_argument("--duration", type=positive_float, help="stop after this many seconds")
-    lv.add_argument("--speed", type=positive_float, default=1.0,
-                    help="with --simulate: device clock speed-up (default 1 = real time)")
-    lv.add_argument("--corruption", type=float, default=0.0,
-                    help="with --simulate: share of bytes corrupted on the wire (e.g. 0.001)")
-    lv.add_argument("--silence", type=positive_float, default=1.0,
-                    help="seconds without a scan before reconnecting (default 1)")
+    add_live_options(lv, required=True)
     add_run_options(lv)
     lv.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
+def add_live_options(p: argparse.ArgumentParser, required: bool) -> None:
+    """The options that choose a serial scanner (or a simulated one) and its link."""
+    p.add_argument("--driver", required=required, choices=["sick", "rplidar", "hokuyo"],
+                   help="scanner protocol")
+    where = p.add_mutually_exclusive_group(required=required)
+    where.add_argument("--port", help="serial device (e.g. /dev/ttyUSB0) or pyserial URL")
+    where.add_argument("--simulate", metavar="SCENARIO",
+                       help="serve a simulated device streaming this scenario on a pty")
+    p.add_argument("--baud", type=positive_int, help="working baud rate (SICK: 9600, 19200, "
+                   "38400 or 500000; default 38400)")
+    p.add_argument("--odometry", metavar="FEED", help="JSON-lines pose feed to read odometry "
+                   "from (serial port, named pipe or file)")
+    p.add_argument("--no-odometry", action="store_true",
+                   help="with --simulate: no simulated pose feed (registration only)")
+    p.add_argument("--scans", type=positive_int, help="stop after this many mapped scans")
+    p.add_argument("--duration", type=positive_float, help="stop after this many seconds")
+    p.add_argument("--speed", type=positive_float, default=1.0,
+                   help="with --simulate: device clock speed-up (default 1 = real time)")
+    p.add_argument("--corruption", type=float, default=0.0,
+                   help="with --simulate: share of bytes corrupted on the wire (e.g. 0.001)")
+    p.add_argument("--silence", type=positive_float, default=1.0,
+                   help="seconds without a scan before reconnecting (default 1)")
+
+
+def open_live_source(args: argparse.Namespace, out: Path):
+    """The live source the options name, recording to ``out/live.clf``; removes the empty
+    folder ``out`` when it cannot be opened."""
     from drivers.scanners import open_live
 
+    if not (args.port or args.simulate):
+        raise InputError("--driver needs --port or --simulate")
     if not 0.0 <= args.corruption < 1.0:
         raise InputError(f"--corruption must lie in [0, 1), got {args.corruption}")
     if args.port and (args.no_odometry or args.corruption or args.speed != 1.0):
         raise InputError("--no-odometry, --corruption and --speed apply to --simulate only")
+    try:
+        return open_live(args.driver, args.simulate or args.port, out / "live.clf",
+                         simulate=bool(args.simulate), odometry=args.odometry,
+                         no_odometry=args.no_odometry, scans=args.scans,
+                         duration=args.duration, speed=args.speed,
+                         corruption=args.corruption, silence=args.silence, baud=args.baud)
+    except BaseException:
+        out.rmdir()
+        raise
+
+
+def run(args: argparse.Namespace) -> int:
     config = mapping_config(args.config)
     label = f"live-{args.driver}" + (f"-{args.simulate}" if args.simulate else "")
     out = new_results_dir(args.out, label)
     record = out / "live.clf"
-    try:
-        source = open_live(args.driver, args.simulate or args.port, record,
-                           simulate=bool(args.simulate), odometry=args.odometry,
-                           no_odometry=args.no_odometry, scans=args.scans,
-                           duration=args.duration, speed=args.speed,
-                           corruption=args.corruption, silence=args.silence, baud=args.baud)
-    except BaseException:
-        out.rmdir()
-        raise
+    source = open_live_source(args, out)
     try:
         if not args.quiet:
             odometry = source.report().counts["odometry"]

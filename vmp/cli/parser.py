@@ -13,6 +13,7 @@ EXAMPLES = """\
 examples:
   vmp map office                          map the default scenario; results/latest holds it all
   vmp map run.clf --out results           map a CARMEN log
+  vmp localize --map results/latest office --seed 3   where is the robot in that map?
   vmp export results/latest --grid map.yaml --resolution 0.05
   vmp evaluate results/latest --ground-truth results/latest/ground_truth.tum
   vmp simulate office                     write office.clf (CARMEN log) and office.tum (truth)
@@ -35,7 +36,7 @@ class Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from vmp.cli import evaluate, export, info, live, mapping, scenarios, simulate
+    from vmp.cli import evaluate, export, info, live, localize, mapping, scenarios, simulate
 
     parser = Parser(
         prog="vmp",
@@ -45,6 +46,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"vmp-slam {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    for command in (simulate, mapping, export, evaluate, info, live, scenarios):
+    for command in (simulate, mapping, localize, export, evaluate, info, live, scenarios):
         command.add_parser(sub)
     return parser

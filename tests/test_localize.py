@@ -1,0 +1,150 @@
+"""Localization in a saved map: from no pose, after a kidnap, with every signature method, and
+the ``vmp localize`` command."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from conftest import mapped, run_cli
+
+from drivers import open_source
+from drivers.splice import carried
+from vmp.errors import InputError
+from vmp.localization import LocalizationRun, open_saved_map
+from vmp.localizer import State
+from vmp.mapfile import MapData
+from vmp.source import FrameList, Reference
+from vmp.types import relative
+
+WITHIN = 30  # scans to localize in, after a start or a kidnap (issue 14)
+
+
+def _saved(name: str) -> MapData:
+    r = mapped(name)
+    p = r.pipeline
+    return MapData(p.map, p.milestones, p.back.graph, {}, r.stamps, r.trajectory)
+
+
+def _run(name: str, seed: int) -> tuple[list, np.ndarray]:
+    sim = open_source(name, seed=seed)
+    return list(sim), sim.reference().poses
+
+
+def _first_right(res, start: int, stop: int) -> int | None:
+    err = res.errors()
+    for k in range(start, stop):
+        if res.states[k] is State.LOCALIZED and err[k] <= 0.5:
+            return k - start
+    return None
+
+
+def test_localizes_another_run_from_no_pose_and_tracks_it():
+    frames, truth = _run("lab", 5)
+    a, n = 400, 200
+    ref = Reference(truth[a:a + n], "ground truth", True)
+    res = LocalizationRun(_saved("lab"), FrameList(frames[a:a + n], "lab", ref)).run()
+    assert _first_right(res, 0, n) is not None and _first_right(res, 0, n) <= WITHIN
+    err = res.errors()
+    loc = res.localized
+    assert loc[WITHIN:].mean() > 0.9  # tracked, once found
+    assert (err[loc] <= 0.5).all()  # never a wrong place
+    assert float(np.sqrt(np.mean(err[loc] ** 2))) < 0.1
+    assert res.states[0] is State.SEARCHING  # one scan is not enough to say
+
+
+def test_a_kidnapped_robot_is_found_again_where_it_was_carried():
+    frames, truth = _run("lab", 6)
+    a, b, n = 100, 700, 120
+    assert np.hypot(*(truth[b, :2] - truth[a + n - 1, :2])) > 3.0
+    joined = carried([frames[a:a + n], frames[b:b + n]])
+    ref = Reference(np.vstack([truth[a:a + n], truth[b:b + n]]), "ground truth", True)
+    res = LocalizationRun(_saved("lab"), FrameList(joined, "lab", ref)).run()
+    err = res.errors()
+    loc = res.localized
+    starts = np.flatnonzero(loc & ~np.concatenate([[False], loc[:-1]]))
+    assert (err[starts] <= 0.5).all(), "a wrong place was declared"
+    assert _first_right(res, 0, n) <= WITHIN
+    assert _first_right(res, n, 2 * n) <= WITHIN
+    # The old place is given up within a few scans of the kidnap.
+    assert (loc[n:] & (err[n:] > 0.5)).sum() <= 5
+
+
+@pytest.mark.parametrize("method", ["ed", "cca", "dct", "hwt"])
+def test_every_signature_method_proposes_the_place(method):
+    frames, truth = _run("lab", 7)
+    a, n = 900, 60
+    data = _saved("lab")
+    state = data.milestones.state()
+    state["config"] = dict(state["config"], method=method)
+    from milestones.manager import MilestoneManager
+
+    data = MapData(data.map, MilestoneManager.from_state(state), data.graph, {},
+                   data.trajectory_stamps, data.trajectory)
+    ref = Reference(truth[a:a + n], "ground truth", True)
+    res = LocalizationRun(data, FrameList(frames[a:a + n], "lab", ref)).run()
+    assert _first_right(res, 0, n) is not None and _first_right(res, 0, n) <= WITHIN
+    assert (res.errors()[res.localized] <= 0.5).all()
+
+
+def test_splice_carries_the_robot_without_the_odometry_noticing():
+    frames, truth = _run("lab", 8)
+    joined = carried([frames[10:20], frames[500:510]])
+    assert [f.index for f in joined] == list(range(20))
+    across = relative(joined[9].odom, joined[10].odom)
+    # Across the cut the odometry does not move, while the true pose jumps.
+    assert np.allclose(across, 0.0, atol=1e-12)
+    assert np.hypot(*(truth[500, :2] - truth[19, :2])) > 1.0
+    # Within the second stretch the odometry increments are the recorded ones.
+    assert np.allclose(relative(joined[10].odom, joined[11].odom),
+                       relative(frames[500].odom, frames[501].odom))
+    stamps = np.array([f.stamp for f in joined])
+    assert (np.diff(stamps) > 0).all()
+
+
+def test_a_scan_of_other_beams_or_a_map_without_milestones_is_refused(tmp_path):
+    data = _saved("lab")
+    frames, _ = _run("lab", 8)
+    halved = [replace(f, ranges=f.ranges[::2], angle_increment=2 * f.angle_increment)
+              for f in frames[:5]]  # another scanner: every other beam
+    with pytest.raises(InputError, match="the map's scanner"):
+        LocalizationRun(data, FrameList(halved, "coarse"))
+    assert run_cli(["map", "lab", "--no-milestones", "--scans", "50", "--out", str(tmp_path),
+                    "-q"]) == 0
+    with pytest.raises(InputError, match="no milestones"):
+        open_saved_map(tmp_path / "latest")
+
+
+def test_localize_command_writes_its_results_folder(tmp_path, capsys):
+    assert run_cli(["map", "lab", "--out", str(tmp_path / "maps"), "-q"]) == 0
+    saved = (tmp_path / "maps" / "latest").resolve()
+    out = tmp_path / "loc"
+    assert run_cli(["localize", "--map", str(saved), "lab", "--seed", "4", "--scans", "80",
+                    "--method", "dct", "--out", str(out), "-q"]) == 0
+    folder = out / "latest"
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert metrics["scans"] == 80 and metrics["wrong fixes"] == 0
+    assert metrics["scans until localized"] <= WITHIN
+    lines = (folder / "states.csv").read_text().splitlines()
+    assert lines[0] == "scan,stamp,state,x,y,theta,hypotheses" and len(lines) == 81
+    localized = [ln for ln in lines[1:] if ",localized," in ln]
+    tum = [ln for ln in (folder / "trajectory.tum").read_text().splitlines()
+           if not ln.startswith("#")]
+    assert len(tum) == len(localized) > 0
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["localize", "--map", "nowhere", "lab"], "nowhere"),
+    (["localize", "--map", "MAP", "lab", "--initial-pose", "1,2"], "X,Y,THETA"),
+    (["localize", "--map", "MAP"], "give a SOURCE"),
+    (["localize", "--map", "MAP", "lab", "--simulate", "lab"], "need --driver"),
+])
+def test_localize_mistakes_get_one_line_and_exit_2(tmp_path, capsys, argv, message):
+    (tmp_path / "MAP").mkdir()
+    argv = [str(tmp_path / a) if a in ("MAP", "nowhere") else a for a in argv]
+    assert run_cli(argv + ["--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
