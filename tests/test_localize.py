@@ -104,17 +104,18 @@ def test_splice_carries_the_robot_without_the_odometry_noticing():
     assert (np.diff(stamps) > 0).all()
 
 
-def test_a_scan_of_other_beams_or_a_map_without_milestones_is_refused(tmp_path):
+def test_a_scan_of_other_beams_or_a_folder_without_a_map_is_refused(tmp_path):
     data = _saved("lab")
     frames, _ = _run("lab", 8)
     halved = [replace(f, ranges=f.ranges[::2], angle_increment=2 * f.angle_increment)
               for f in frames[:5]]  # another scanner: every other beam
     with pytest.raises(InputError, match="the map's scanner"):
         LocalizationRun(data, FrameList(halved, "coarse"))
-    assert run_cli(["map", "lab", "--no-milestones", "--scans", "50", "--out", str(tmp_path),
-                    "-q"]) == 0
-    with pytest.raises(InputError, match="no milestones"):
-        open_saved_map(tmp_path / "latest")
+    with pytest.raises(InputError, match="no map.vmpmap"):
+        open_saved_map(tmp_path)
+    (tmp_path / "map.vmpmap").write_bytes(b"not a map")
+    with pytest.raises(InputError, match="not a readable vmp-slam map"):
+        open_saved_map(tmp_path)
 
 
 def test_localize_command_writes_its_results_folder(tmp_path, capsys):
