@@ -15,9 +15,12 @@ Real (every log in ../shared/data with a relations file): the first half of the 
 the second half localized in that map from no pose, and scored on the relations whose two
 stamps both lie in the second half, beside the whole log mapped in one go on the same
 relations. Also the tracking speed against the mapping speed (scans per second of each run
-loop, the full mapping run's).
+loop, the full mapping run's), and two second sessions scored on all the log's relations:
+the second half mapped on in the first half's map (``vmp map --continue``), and both halves
+mapped apart and merged (``vmp merge``).
 
-Writes the tables into docs/benchmarks.md (only when run on everything).
+Writes the tables into docs/benchmarks.md (the simulated one when all four scenarios ran 20
+runs, the real one when every log ran).
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import argparse
 import math
 import statistics
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +44,7 @@ from drivers.splice import carried
 from vmp.evaluate import read_relations, relation_error
 from vmp.localization import WRONG_FIX, LocalizationResult, LocalizationRun
 from vmp.localizer import State
-from vmp.mapfile import MapData
+from vmp.mapfile import MapData, load_map, save_map
 from vmp.results import Result
 from vmp.run import MappingRun
 from vmp.source import FrameList, Reference
@@ -52,9 +56,13 @@ SIM = ("office", "warehouse", "lab", "corridor")
 
 
 def saved(result: Result) -> MapData:
-    """A mapping run's map as a saved one (what ``map.vmpmap`` holds)."""
+    """A mapping run's map as a saved one: written to a map file and read back, so that
+    mapping on in it leaves the run's own map alone."""
     p = result.pipeline
-    return MapData(p.map, p.milestones, p.back.graph, {}, result.stamps, result.trajectory)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "map.vmpmap"
+        save_map(path, p.map, p.milestones, p.back.graph, {}, result.trajectory)
+        return load_map(path)
 
 
 def recovery(res: LocalizationResult, start: int, stop: int) -> int | None:
@@ -89,13 +97,15 @@ def sim_run(name: str, smap: MapData, seed: int) -> dict:
             "wrong": int((err[starts] > WRONG_FIX).sum()),
             "stale": int((loc & after & (err > WRONG_FIX)).sum()),
             "ambiguous": sum(s is State.AMBIGUOUS for s in res.states),
-            "rate": res.scans / res.time}
+            "rate": res.scans / res.time,
+            "tracking": res.metrics().get("tracking: scans per second", math.nan)}
 
 
 def simulated(names: list[str], runs: int) -> list[dict]:
     rows = []
     for name in names:
-        smap = saved(MappingRun(open_source(name)).run())
+        mapped = MappingRun(open_source(name)).run()
+        smap = saved(mapped)
         results = [sim_run(name, smap, 100 + i) for i in range(runs)]
         both = [r["start"] for r in results] + [r["kidnap"] for r in results]
         ok = [k for k in both if k is not None and k <= WITHIN]
@@ -106,11 +116,14 @@ def simulated(names: list[str], runs: int) -> list[dict]:
                "wrong": sum(r["wrong"] for r in results),
                "stale": statistics.median(r["stale"] for r in results),
                "ambiguous": sum(r["ambiguous"] for r in results),
-               "rate": statistics.median(r["rate"] for r in results)}
+               "rate": statistics.median(r["rate"] for r in results),
+               "tracking": statistics.median(r["tracking"] for r in results),
+               "map_rate": mapped.scans / mapped.mapping_time}
         print(f"{name}: {row['within']} of {row['of']} starts and kidnaps localized within "
               f"{WITHIN} scans (median {row['median']}, never {row['never']}); wrong fixes "
               f"{row['wrong']}; scans at the old place after a kidnap (median) {row['stale']}; "
-              f"ambiguous scans {row['ambiguous']}; {row['rate']:.0f} scans/s", flush=True)
+              f"ambiguous scans {row['ambiguous']}; localizing {row['rate']:.0f} scans/s, "
+              f"tracking {row['tracking']:.0f}, mapping {row['map_rate']:.0f}", flush=True)
         rows.append(row)
     return rows
 
@@ -133,25 +146,41 @@ def real(only: str | None) -> list[dict]:
         e_loc = relation_error(res.stamps[loc], res.poses[loc], inside)
         first_fix = int(np.argmax(loc)) if loc.any() else None
         map_rate = full.scans / full.mapping_time
+        # A second session: the second half mapped on in the first half's map, and the two
+        # halves mapped apart and merged (what 'vmp map --continue' and 'vmp merge' do).
+        cont = MappingRun(FrameList(frames[half:], name), saved=saved(first)).run()
+        second = MappingRun(FrameList(frames[half:], name)).run()
+        merged = MappingRun(FrameList(saved(second).frames(), name), saved=saved(first)).run()
+        e_all = relation_error(full.stamps, full.trajectory, relations)
+        e_cont = relation_error(cont.stamps, cont.trajectory, relations)
+        e_merged = relation_error(merged.stamps, merged.trajectory, relations)
         row = {"name": name, "scans": res.scans, "first": first_fix, "share": float(loc.mean()),
                "lost": sum(s is State.LOST for s in res.states), "relations": len(inside),
                "used": e_loc.used, "loc": e_loc, "full": e_full,
-               "rate": res.scans / res.time, "map_rate": map_rate}
+               "rate": res.scans / res.time, "map_rate": map_rate, "all": e_all,
+               "tracking": res.metrics().get("tracking: scans per second", math.nan),
+               "cont": e_cont, "merged": e_merged}
         print(f"{name}: second half ({res.scans} scans) localized after {first_fix} scans, "
               f"{row['share']:.1%} of scans localized, {row['lost']} lost; relations in the "
               f"second half: localized {e_loc.trans_mean:.4f} m, "
               f"{math.degrees(e_loc.rot_mean):.2f} deg on {e_loc.used} of {len(inside)}; "
               f"whole log mapped {e_full.trans_mean:.4f} m, {math.degrees(e_full.rot_mean):.2f} "
-              f"deg on {e_full.used}; tracking {row['rate']:.0f} scans/s, mapping "
-              f"{map_rate:.0f} scans/s (x{row['rate'] / map_rate:.1f})", flush=True)
+              f"deg on {e_full.used}; localizing {row['rate']:.0f} scans/s, tracking "
+              f"{row['tracking']:.0f}, mapping {map_rate:.0f} scans/s (tracking "
+              f"x{row['tracking'] / map_rate:.1f}); whole log: mapped "
+              f"{e_all.trans_mean:.4f} m, continued {e_cont.trans_mean:.4f} m "
+              f"({e_cont.used} relations), merged {e_merged.trans_mean:.4f} m "
+              f"({e_merged.used})", flush=True)
         rows.append(row)
     return rows
 
 
 def table(sim: list[dict], rows: list[dict], runs: int) -> str:
-    lines = ["## Localization in a saved map", "",
-             f"`python bench/localize.py` on {machine()}, default configuration, no initial "
-             "pose.", ""]
+    what = "simulated worlds" if sim else "real logs"
+    cmd = "--no-real" if sim else "--no-sim"
+    lines = [f"## Localization in a saved map: {what}", "",
+             f"`python bench/localize.py {cmd}` on {machine()}, default configuration, no "
+             "initial pose.", ""]
     if sim:
         lines += [f"Simulated: per scenario {runs} runs with seeds 100.., each started at a "
                   f"random scan and kidnapped after {STRETCH} scans to a random place "
@@ -159,26 +188,39 @@ def table(sim: list[dict], rows: list[dict], runs: int) -> str:
                   "\"Stale\" is the median number of scans still localized at the old place "
                   "after the kidnap, before the scans stop fitting there.", "",
                   f"| scenario | localized within {WITHIN} scans (starts + kidnaps) | median "
-                  "scans | never | wrong fixes | stale | ambiguous scans | scans/s |",
-                  "|---|---|---|---|---|---|---|---|"]
+                  "scans | never | wrong fixes | stale | ambiguous scans | scans/s: localizing, "
+                  "tracking, mapping |", "|---|---|---|---|---|---|---|---|"]
         for r in sim:
             lines.append(f"| {r['name']} | {r['within']} of {r['of']} | {r['median']} | "
                          f"{r['never']} | {r['wrong']} | {r['stale']} | {r['ambiguous']} | "
-                         f"{r['rate']:.0f} |")
+                         f"{r['rate']:.0f}, {r['tracking']:.0f}, {r['map_rate']:.0f} |")
         lines.append("")
     if rows:
         lines += ["Real: the first half of each log mapped, the second half localized in it "
                   "from no pose; relations with both stamps in the second half.", "",
                   "| log | scans until localized | scans localized | lost | relations used | "
-                  "localized: trans (m), rot (deg) | whole log mapped: trans, rot | tracking / "
-                  "mapping speed |", "|---|---|---|---|---|---|---|---|"]
+                  "localized: trans (m), rot (deg) | whole log mapped: trans, rot | speed: "
+                  "localizing, tracking, mapping (scans/s) | tracking / mapping |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
             a, b = r["loc"], r["full"]
             lines.append(f"| {r['name']} | {r['first']} | {r['share']:.1%} | {r['lost']} | "
                          f"{a.used} of {r['relations']} | {a.trans_mean:.4f}, "
                          f"{math.degrees(a.rot_mean):.2f} | {b.trans_mean:.4f}, "
-                         f"{math.degrees(b.rot_mean):.2f} | x{r['rate'] / r['map_rate']:.1f} "
-                         f"({r['rate']:.0f} / {r['map_rate']:.0f} scans/s) |")
+                         f"{math.degrees(b.rot_mean):.2f} | {r['rate']:.0f}, "
+                         f"{r['tracking']:.0f}, {r['map_rate']:.0f} | "
+                         f"x{r['tracking'] / r['map_rate']:.1f} |")
+        lines.append("")
+        lines += ["Second sessions on the same logs, scored on every relation of the log: the "
+                  "second half mapped on in the first half's map (`vmp map --continue`), and "
+                  "the two halves mapped apart then merged (`vmp merge`), beside the whole log "
+                  "mapped in one go.", "",
+                  "| log | one go: trans (m), rot (deg) | continued | merged |",
+                  "|---|---|---|---|"]
+        for r in rows:
+            cells = [f"{e.trans_mean:.4f}, {math.degrees(e.rot_mean):.2f} ({e.used})"
+                     for e in (r["all"], r["cont"], r["merged"])]
+            lines.append(f"| {r['name']} | " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
 
@@ -194,10 +236,10 @@ def main() -> None:
     args = ap.parse_args()
     sim = [] if args.no_sim else simulated(args.sim, args.runs)
     rows = [] if args.no_real else real(args.only)
-    complete = (not args.no_sim and not args.no_real and args.only is None
-                and set(args.sim) == set(SIM) and args.runs == 20)
-    if complete:
-        write_section("localize", table(sim, rows, args.runs))
+    if sim and set(args.sim) == set(SIM) and args.runs == 20:
+        write_section("localize-sim", table(sim, [], args.runs))
+    if rows and args.only is None:
+        write_section("localize-real", table([], rows, args.runs))
 
 
 if __name__ == "__main__":

@@ -38,6 +38,7 @@ from vmp.types import (
     inverse,
     inverse_covariance,
     relative,
+    rotate_covariance,
 )
 from vmp.view import View
 
@@ -50,6 +51,9 @@ CONFIRM_XY = 0.3
 CONFIRM_THETA = math.radians(3.0)
 # Added to every milestone's covariance from the graph's marginals (m^2, m^2, rad^2).
 MARGINAL_FLOOR = np.diag([1e-6, 1e-6, 1e-8])
+# The covariance of a saved map's milestones when mapping goes on in it: the file keeps their
+# adjusted poses, not their marginals (m^2, m^2, rad^2).
+SAVED_COV = np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2])
 
 
 def fuse(a: FloatArray, cov_a: FloatArray, b: FloatArray, cov_b: FloatArray
@@ -92,6 +96,26 @@ class BackEnd:
         # A loop the search found, waiting for a second to agree: (anchor, milestone, z,
         # covariance, correction of the map frame).
         self._pending: tuple[int, int, FloatArray, FloatArray, FloatArray] | None = None
+
+    def restore(self, graph: PoseGraph) -> None:
+        """Take over a saved map's graph (its milestones are the manager's already)."""
+        self.graph = graph
+        self._abs_cov = [SAVED_COV.copy() for _ in range(int(self.milestones.ids.max()) + 1)]
+        for e in graph.edges:
+            self._neighbours.setdefault(e.i, set()).add(e.j)
+            self._neighbours.setdefault(e.j, set()).add(e.i)
+        self.stats["loop edges"] += sum(e.kind == "loop" for e in graph.edges)
+
+    def join(self, place: int, first: int, cov: FloatArray) -> Edge:
+        """A loop edge from a saved milestone to the first of a new session, where a localizer
+        put the robot (``cov``: its covariance in the map frame)."""
+        a = self.milestones.pose(place)
+        z = relative(a, self.milestones.pose(first))
+        edge = self._add_edge(place, first, z, rotate_covariance(cov, -a[2]) + SAVED_COV,
+                              "loop")
+        self.stats["loop edges"] += 1
+        self.stats["sessions joined"] += 1
+        return edge
 
     # ---- what the matcher needs to know ---------------------------------------------------
 

@@ -64,11 +64,6 @@ def open_saved_map(path: str | Path, method: str | None = None) -> MapData:
     return data
 
 
-def _beams(g) -> str:
-    return (f"{g.num_beams} beams from {math.degrees(g.angle_min):.2f} deg every "
-            f"{math.degrees(g.angle_increment):.3f} deg")
-
-
 @dataclass
 class LocalizationResult:
     """What a localization run knew after each scan."""
@@ -83,6 +78,7 @@ class LocalizationResult:
     report: SourceReport
     stats: dict
     time: float  # seconds of the run loop
+    step_times: FloatArray  # (S,) seconds each scan took
     interrupted: str | None = None
 
     @property
@@ -125,6 +121,11 @@ class LocalizationResult:
                 out["error of localized poses, max (m)"] = float(err[loc].max())
         out["localization time (s)"] = self.time
         out["scans per second"] = self.scans / max(self.time, 1e-9)
+        tracked = loc & np.concatenate([[False], loc[:-1]])  # localized before and after
+        if tracked.any():
+            out["tracking: scans per second"] = float(tracked.sum()
+                                                      / max(self.step_times[tracked].sum(),
+                                                            1e-9))
         if self.interrupted:
             out["interrupted by"] = self.interrupted
         return out
@@ -156,12 +157,7 @@ class LocalizationRun:
                  view: View | None = None, *, map_path: str = "", scans: int | None = None,
                  initial_pose: FloatArray | None = None, progress: Progress | None = None,
                  label: str | None = None) -> None:
-        mine, theirs = source.geometry, saved.map.geometry
-        if (mine.num_beams, mine.angle_min, mine.angle_increment) != (
-                theirs.num_beams, theirs.angle_min, theirs.angle_increment):
-            raise InputError(f"{label or source.name}: {_beams(mine)}, the map's scanner "
-                             f"{_beams(theirs)}: localize with the scanner the map was made "
-                             "with")
+        saved.check_beams(source.geometry, label or source.name)
         self.saved, self.source = saved, source
         self.config = config or MappingConfig()
         self.view: View = view or NullView()
@@ -180,17 +176,21 @@ class LocalizationRun:
             return self._run()
 
     def _run(self) -> LocalizationResult:
-        places = Places(self.saved.map, self.saved.milestones)
+        places = Places(self.saved.map, self.saved.milestones,
+                        self.saved.trajectory)
         self.view.saved_milestones(self.saved.milestones.ids, self.saved.milestones.poses)
         localizer = Localizer(places, self.config, self.initial_pose)
         stamps: list[float] = []
         states: list[State] = []
         poses: list[FloatArray] = []
         counts: list[int] = []
+        took: list[float] = []
         started = time.perf_counter()
         try:
             for frame in self.source:
+                t = time.perf_counter()
                 step = localizer.step(frame)
+                took.append(time.perf_counter() - t)
                 stamps.append(frame.stamp)
                 states.append(step.state)
                 poses.append(step.pose if step.pose is not None else np.full(3, np.nan))
@@ -215,4 +215,4 @@ class LocalizationRun:
                                   np.array(poses), np.array(counts),
                                   reference_for(self.source, len(stamps)),
                                   self.source.report(), dict(localizer.stats), elapsed,
-                                  self.interrupted)
+                                  np.array(took), self.interrupted)

@@ -54,7 +54,8 @@ __all__ = ["Hypothesis", "Localizer", "State"]
 MIN_SEARCHES = 3  # searches for other places a hypothesis must outlive to be trusted ...
 MIN_FITS = 5  # ... and scans it must have fitted
 SEARCH_EVERY = 2  # scans between searches while not localized
-LOST_AFTER = 3  # misses in a row after which the robot is lost
+LOST_AFTER = 5  # misses in a row after which the robot is lost
+MIN_SCORE = 0.7  # the least mean score over the window of a place to be declared
 DROP_AFTER = 3  # misses in a row after which an untrusted hypothesis is dropped
 DEAD_RECKONING = 100  # misses in a row after which a trusted one is dropped too
 SAME_XY = 0.3  # a proposal this near a hypothesis (m) ...
@@ -170,27 +171,37 @@ class Localizer:
         return Hypothesis(PoseFilter(pose, cov, self.config.motion))
 
     def _track(self, h: Hypothesis, points: FloatArray) -> None:
-        """Register the scan where ``h`` puts it; a fit within its gate corrects it."""
+        """Register the scan where ``h`` puts it; a close fit within its gate corrects it,
+        a scan that scores less than usual there is a miss."""
         place = self.places.nearest(h.pose) if len(points) >= MIN_POINTS else None
         if place is None:
             h.misses += 1
             h.scores.append(0.0)
             return
-        reg = register(place.reference, points, relative(place.pose, h.pose))
-        z = compose(place.pose, reg.pose)
-        R = rotate_covariance(reg.covariance, place.pose[2])
-        score = place.grid.score(points[np.hypot(points[:, 0], points[:, 1]) <= REACH],
-                                 reg.pose)
-        if (fits(reg, self.config.registration) and score >= KEEP_RATIO * h.usual
-                and h.filter.mahalanobis2(z, R) <= CHI2_3DOF_99):
-            h.filter.update(z, R)
-            h.misses = 0
-            h.fits += 1
-            h.fitted.append(score)
-            h.scores.append(score)
-        else:
+        # The points within the submap's reach: beyond it nothing can match.
+        near = points[np.hypot(points[:, 0], points[:, 1]) <= REACH]
+        if len(near) < MIN_POINTS:
             h.misses += 1
             h.scores.append(0.0)
+            return
+        reg = register(place.reference, near, relative(place.pose, h.pose))
+        z = compose(place.pose, reg.pose)
+        R = rotate_covariance(reg.covariance, place.pose[2])
+        update = (fits(reg, self.config.registration)
+                  and h.filter.mahalanobis2(z, R) <= CHI2_3DOF_99)
+        # Scored where the scan lands: registered, or predicted when ICP did not fit (part
+        # of the view may lie outside the map, a room it never saw).
+        score = place.score(near, reg.pose if update else relative(place.pose, h.pose))
+        if score < KEEP_RATIO * h.usual:
+            h.misses += 1
+            h.scores.append(0.0)
+            return
+        if update:
+            h.filter.update(z, R)
+        h.misses = 0
+        h.fits += 1
+        h.fitted.append(score)
+        h.scores.append(score)
 
     def _add(self, p: Proposal) -> None:
         """A proposal is a new place to follow, unless one followed is already there."""
@@ -220,9 +231,8 @@ class Localizer:
     # ---- the decision ----------------------------------------------------------------------
 
     def _searching(self) -> bool:
-        """Whether to look for the place: unless a trusted hypothesis fits."""
-        t = self._trusted()
-        return t is None or t.misses > 0
+        """Whether to look for the place: unless localized."""
+        return self._trusted() is None
 
     def _decide(self) -> State:
         trusted = self._trusted()
@@ -245,7 +255,7 @@ class Localizer:
         best = max(fitting, key=lambda h: h.score)
         if any(h is not best and _rival(h, best) for h in others):
             return State.AMBIGUOUS
-        if best.searches < MIN_SEARCHES or best.fits < MIN_FITS:
+        if best.searches < MIN_SEARCHES or best.fits < MIN_FITS or best.score < MIN_SCORE:
             return waiting
         # The others are dropped: while localized nothing proposes places, so none of them
         # could gain a find, and following them would cost a registration a scan each.
@@ -257,8 +267,13 @@ class Localizer:
 
 
 def _rival(h: Hypothesis, best: Hypothesis) -> bool:
-    """Whether ``h`` explains the scans about as well as ``best``."""
-    return 1.0 - h.score < RIVAL_FACTOR * (1.0 - best.score) + RIVAL_MARGIN
+    """Whether ``h`` explains the scans about as well as ``best``, over the scans both were
+    followed (one proposed just now blocks only when it already explains more)."""
+    if h.fits < MIN_FITS:
+        return h.score >= best.score
+    n = min(len(h.scores), len(best.scores))
+    mine, theirs = np.mean(list(h.scores)[-n:]), np.mean(list(best.scores)[-n:])
+    return 1.0 - mine < RIVAL_FACTOR * (1.0 - theirs) + RIVAL_MARGIN
 
 
 def _same(a: FloatArray, b: FloatArray) -> bool:

@@ -19,6 +19,7 @@ from milestones.manager import MilestoneManager
 from vmp.errors import InputError
 from vmp.fileio import atomic_write
 from vmp.pose_graph import PoseGraph
+from vmp.types import ScanFrame
 from vmp.vector_map import BeamGeometry, VectorMap
 
 __all__ = ["FORMAT", "VERSION", "MapData", "load_map", "save_map"]
@@ -38,6 +39,30 @@ class MapData:
     config: dict
     trajectory_stamps: np.ndarray
     trajectory: np.ndarray  # assembled scan poses when saved (S, 3)
+
+    def frames(self) -> list[ScanFrame]:
+        """The map's scans as frames: ranges from the stored end points (``inf`` where a beam
+        had no return), the assembled poses as their odometry, the stored stamps."""
+        vmap = self.map
+        g = vmap.geometry
+        pts = vmap.end_points.astype(np.float64)
+        reach = np.hypot(pts[..., 0], pts[..., 1])
+        hits = vmap.scan_hits(range(len(vmap)))
+        ranges = np.where(hits, np.minimum(reach, g.max_range), np.inf)
+        # A scan whose beams without a return were kept as a 2 cm fan proved no free space.
+        fan = (~hits & (reach < 0.03)).any(axis=1)
+        stamps = vmap.stamps
+        return [ScanFrame(float(stamps[k]), ranges[k], g.angle_min, g.angle_increment,
+                          g.max_range, odom=self.trajectory[k], index=k,
+                          no_return_free=0.0 if fan[k] else None)
+                for k in range(len(vmap))]  # one frame object per stored scan
+
+    def check_beams(self, geometry: BeamGeometry, label: str) -> None:
+        """Refuse scans of another scanner than the map's (other beams) with a clear error."""
+        if not geometry.same_beams(self.map.geometry):
+            raise InputError(f"{label}: {geometry.describe()}, the map's scanner "
+                             f"{self.map.geometry.describe()}: use the scanner the map was "
+                             "made with")
 
 
 def save_map(path: str | os.PathLike[str], vmap: VectorMap, milestones: MilestoneManager,

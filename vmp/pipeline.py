@@ -26,6 +26,7 @@ from vmp.backend import BackEnd
 from vmp.config import MappingConfig
 from vmp.frontend import FrontEnd
 from vmp.loops import NEIGHBOURS, LoopSearch
+from vmp.mapfile import MapData
 from vmp.matcher import Doubt, Kind, Match, Matcher, Seed
 from vmp.submaps import Submaps
 from vmp.types import BeamGeometry, FloatArray, ScanFrame, compose, inverse, relative
@@ -44,25 +45,40 @@ class Pipeline:
     """Build a vector map and a corrected trajectory from scan frames."""
 
     def __init__(self, geometry: BeamGeometry, config: MappingConfig | None = None,
-                 view: View | None = None) -> None:
+                 view: View | None = None, saved: MapData | None = None) -> None:
+        """``saved`` is a map to go on mapping in (:meth:`join` puts the robot in it)."""
         self.config = config or MappingConfig()
         self.view: View = view or NullView()
         self.geometry = geometry
         self.stats: Counter[str] = Counter()
-        self.map = VectorMap(geometry, self.config.map.no_return_free_range)
-        self.milestones = MilestoneManager(self.config.milestones)
+        self.map = (saved.map if saved is not None
+                    else VectorMap(geometry, self.config.map.no_return_free_range))
+        self.milestones = (saved.milestones if saved is not None
+                           else MilestoneManager(self.config.milestones))
         self.front = FrontEnd(self.config)
         self.submaps = Submaps(self.map)
         self.matcher = Matcher(self.config, geometry, self.milestones, self.stats)
         self.back = BackEnd(self.config, self.milestones, self.matcher.reference, self.view,
                             self.stats)
         self.loops = LoopSearch(self.config, self.milestones, self._submap_points, self.stats)
+        if saved is not None:
+            self.back.restore(saved.graph)
+        self._join: int | None = None  # the saved milestone the robot was localized at
         # Every correction of the robot's pose: (scan index, kind, pose before, pose after).
         self.corrections: list[tuple[int, str, FloatArray, FloatArray]] = []
         self._stamp = 0.0
         self._last_corrected = -1  # index of the scan the last correction was spread to
         self._uncorrected: FloatArray | None = None  # this scan's pose before its correction
         self._handover: tuple[int, FloatArray] | None = None  # this scan's new anchor, handover
+
+    def join(self, front: FrontEnd, place: int) -> None:
+        """Go on mapping a saved map from where a localizer found the robot: ``front`` is
+        its front end (its filter at the robot's pose in the map's frame, with its
+        covariance), ``place`` the saved milestone it was registered against. The next scan
+        records a milestone there, joined to ``place`` by a loop edge."""
+        self.front = front
+        self._join = place
+        self.back.anchor = None
 
     # ---- one scan ----------------------------------------------------------------------------
 
@@ -164,6 +180,9 @@ class Pipeline:
         if self.back.anchor is None:
             first = self.back.begin(self.front.pose, self.front.covariance, frame)
             self._start_segment(first, None)
+            if self._join is not None:
+                self.back.join(self._join, first, self.front.covariance)
+                self._join = None
         elif self._handover is not None:
             self._start_segment(*self._handover)
         anchor_pose = self.milestones.pose(self.back.anchor)

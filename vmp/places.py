@@ -1,9 +1,13 @@
 """A saved map as places to localize in: its milestones and, around each, a submap to match.
 
-Localization reads a saved map and never changes it. Around every milestone the scans of its
-segment and its neighbours' (:mod:`vmp.submaps`) form a submap in the milestone's frame; it is
-built when first asked for and kept (least recently used dropped) as a registration reference
-for tracking and as a branch-and-bound search grid for the global search.
+Localization reads a saved map and never changes it, so its frame is settled: every hit point
+of the assembled map is placed once (voxel-thinned), and around each milestone the points
+within :data:`GRID_RADIUS` form its submap, in the milestone's frame, whichever part of the
+path saw them (the mapper's submaps, :mod:`vmp.submaps`, take only the milestone's segments
+and its neighbours', as the map may still move; a place seen again from elsewhere along the
+path would then look half empty). A submap is built when first asked for and kept (least
+recently used dropped) as a registration reference for tracking and as a branch-and-bound
+search grid for the global search.
 """
 
 from __future__ import annotations
@@ -14,19 +18,19 @@ from collections import OrderedDict
 import numpy as np
 
 from milestones.manager import MilestoneManager
-from vmp.branch_bound import SearchGrid
+from vmp.branch_bound import SearchGrid, likelihood_field
 from vmp.registration import Reference
-from vmp.submaps import Submaps
-from vmp.types import FloatArray
+from vmp.submaps import voxel_thin
+from vmp.types import FloatArray, inverse, transform_points
 from vmp.vector_map import VectorMap
 
 __all__ = ["Place", "Places"]
 
-NEIGHBOURS = 3  # a submap takes in the segments of this many milestones either way
 GRID_RADIUS = 20.0  # submap points farther than this from the milestone are left out (m)
 RESOLUTION = 0.1  # search grid cell (m)
 SIGMA = 0.1  # likelihood fall-off of the search grid (m)
 DEPTH = 5  # levels of block maxima
+VOXEL = 0.05  # one map point kept per cell of this size (m); 0.1 did worse on Intel
 MAX_WINDOW = 3.0  # the widest search window either way (m)
 CACHED = 64  # submaps kept
 TURN_COST = 1.0  # choosing the nearest milestone, a radian of heading counts as this (m)
@@ -41,6 +45,23 @@ class Place:
         self.points = points  # the submap in the milestone's frame
         self.reference = Reference(points)
         self._grid: SearchGrid | None = None
+        self._field: tuple[FloatArray, np.ndarray] | None = None
+
+    def score(self, points: FloatArray, pose: FloatArray) -> float:
+        """Mean likelihood of ``points`` (their frame) placed at ``pose`` in the submap: the
+        branch-and-bound search's score, from a field of its own (the search's levels are
+        built only for a search)."""
+        if self._grid is not None:
+            return self._grid.score(points, pose)
+        if self._field is None:
+            origin, field = likelihood_field(self.points, RESOLUTION, SIGMA, 1)
+            self._field = origin, np.round(255.0 * field).astype(np.uint8)
+        origin, field = self._field
+        if len(points) == 0:
+            return 0.0
+        cells = np.rint((transform_points(pose, points) - origin) / RESOLUTION).astype(np.int64)
+        cells = np.clip(cells, 0, np.array(field.shape) - 1)  # the border cells are zeros
+        return float(field[cells[:, 0], cells[:, 1]].mean()) / 255.0
 
     @property
     def grid(self) -> SearchGrid:
@@ -53,13 +74,12 @@ class Place:
 class Places:
     """The milestones of a saved map and the submaps around them."""
 
-    def __init__(self, vmap: VectorMap, milestones: MilestoneManager) -> None:
+    def __init__(self, vmap: VectorMap, milestones: MilestoneManager,
+                 trajectory: FloatArray) -> None:
+        """``trajectory``: the map's assembled scan poses (as saved with it)."""
         self.map = vmap
         self.milestones = milestones
-        ids = milestones.ids
-        self._poses_by_id = np.zeros((int(ids.max()) + 1 if len(ids) else 0, 3))
-        self._poses_by_id[ids] = milestones.poses
-        self._submaps = Submaps(vmap)
+        self.points = voxel_thin(vmap.world_points(trajectory), VOXEL)
         self._cache: OrderedDict[int, Place | None] = OrderedDict()
 
     def __len__(self) -> int:
@@ -70,13 +90,11 @@ class Places:
         if milestone in self._cache:
             self._cache.move_to_end(milestone)
             return self._cache[milestone]
-        held = self._submaps.neighbourhood(milestone, NEIGHBOURS, self._poses_by_id)
+        pose = self.milestones.pose(milestone).copy()
+        near = np.hypot(self.points[:, 0] - pose[0], self.points[:, 1] - pose[1]) <= GRID_RADIUS
         place = None
-        if held is not None:
-            pts = held[1]
-            pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= GRID_RADIUS]
-            if len(pts) >= 20:
-                place = Place(milestone, self._poses_by_id[milestone].copy(), pts)
+        if near.sum() >= 20:
+            place = Place(milestone, pose, transform_points(inverse(pose), self.points[near]))
         self._cache[milestone] = place
         if len(self._cache) > CACHED:
             self._cache.popitem(last=False)

@@ -175,6 +175,16 @@ class BeamGeometry:
     def full_circle(self) -> bool:
         return self.field_of_view >= 2 * np.pi - 1e-6
 
+    def same_beams(self, other: BeamGeometry) -> bool:
+        """Whether ``other`` has these beams (its range limit may differ)."""
+        return (self.num_beams, self.angle_min, self.angle_increment) == (
+            other.num_beams, other.angle_min, other.angle_increment)
+
+    def describe(self) -> str:
+        """The beams in words, angles in degrees."""
+        return (f"{self.num_beams} beams from {math.degrees(self.angle_min):.2f} deg every "
+                f"{math.degrees(self.angle_increment):.3f} deg")
+
 
 def _readonly(a: ArrayLike, dtype: type = np.float64) -> FloatArray:
     out = np.array(a, dtype=dtype, copy=True)

@@ -10,6 +10,7 @@ from pathlib import Path
 from vmp.cli.args import positive_float
 from vmp.config import MappingConfig, load_config
 from vmp.errors import InputError
+from vmp.mapfile import MapData
 from vmp.progress import Progress
 from vmp.results import Result, format_metrics, link_latest
 from vmp.run import MappingRun, stop_on_signals
@@ -52,20 +53,23 @@ def open_view(target: str | None, quiet: bool):
 
 
 def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespace,
-                  out: Path, label: str, scans: int | None = None) -> tuple[Result, int]:
+                  out: Path, label: str, scans: int | None = None,
+                  saved: MapData | None = None) -> tuple[Result, int]:
     """Map ``source`` into the results folder ``out`` and print what happened.
 
     Ctrl-C or SIGTERM while mapping end the run: what was mapped so far is finished, written
     and reported, and the exit code (128 + the signal's number) says it was interrupted.
-    Returns the result and the exit code.
+    With ``saved``, mapping goes on in that map (:class:`~vmp.run.MappingRun`). Returns the
+    result and the exit code.
     """
     view = open_view(args.rerun, args.quiet)
     total = source.length if scans is None or source.length is None else min(scans,
                                                                               source.length)
     progress = Progress(total or scans, f"mapping {source.name}",
                         enabled=False if args.quiet else None)
-    run = MappingRun(source, config, view, scans=scans, progress=progress, label=label)
     try:
+        run = MappingRun(source, config, view, scans=scans, progress=progress, label=label,
+                         saved=saved)
         result = run.run()
     except BaseException:
         if out.is_dir() and not any(out.iterdir()):

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from pathlib import Path
 
 from vmp.cli.args import nonneg_int, positive_int
 from vmp.cli.common import add_run_options, map_and_write, mapping_config
+from vmp.errors import InputError
 from vmp.results import new_results_dir
 
 __all__ = ["add_parser", "run"]
@@ -25,7 +27,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         epilog="examples:\n  vmp map office\n  vmp map warehouse --out /tmp/runs\n"
         "  vmp map ../shared/data/intel/intel-first5505.clf.gz\n"
         "  vmp map corridor --no-milestones          # odometry and scan matching only\n"
-        "  vmp map office --config my.yaml           # see results/latest/config.yaml\n",
+        "  vmp map office --config my.yaml           # see results/latest/config.yaml\n"
+        "  vmp map run2.clf --continue results/run1-20261201-101500   # a second session\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     mp.add_argument("source", help="scenario name, scenario YAML, or a recording: CARMEN log "
@@ -45,6 +48,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     mp.add_argument("--scan-topic", help="ROS bags: the LaserScan topic (default: the first)")
     mp.add_argument("--odom-topic", help="ROS bags: an Odometry or tf topic (default: an "
                     "Odometry topic, else /tf; see 'vmp info')")
+    mp.add_argument("--continue", dest="continue_from", metavar="RESULT", type=Path,
+                    help="go on mapping in a saved map (a results folder of 'vmp map'): the "
+                    "scans are localized in it first, no start pose needed; the result holds "
+                    "both sessions")
     mp.add_argument("--strict", action="store_true",
                     help="stop at the first bad line of a recording (default: skip, count, "
                     "report)")
@@ -64,8 +71,15 @@ def run(args: argparse.Namespace) -> int:
     if args.no_scan_odometry:
         config = dataclasses.replace(config, scan_odometry=dataclasses.replace(
             config.scan_odometry, enabled=False))
+    saved = None
+    if args.continue_from is not None:
+        from vmp.localization import open_saved_map
+
+        if args.no_milestones:
+            raise InputError("--continue needs milestones: leave out --no-milestones")
+        saved = open_saved_map(args.continue_from)
     source = open_source(args.source, seed=args.seed, scans=args.scans, strict=args.strict,
                          fmt=args.format, scan_topic=args.scan_topic,
                          odom_topic=args.odom_topic)
     out = new_results_dir(args.out, source.name)
-    return map_and_write(source, config, args, out, args.source, args.scans)[1]
+    return map_and_write(source, config, args, out, args.source, args.scans, saved)[1]

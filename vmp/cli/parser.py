@@ -14,6 +14,8 @@ examples:
   vmp map office                          map the default scenario; results/latest holds it all
   vmp map run.clf --out results           map a CARMEN log
   vmp localize --map results/latest office --seed 3   where is the robot in that map?
+  vmp map run2.clf --continue results/run1-20261201-101500   map on in a saved map
+  vmp merge results/run1-... results/run2-... --out results   two maps joined into one
   vmp export results/latest --grid map.yaml --resolution 0.05
   vmp evaluate results/latest --ground-truth results/latest/ground_truth.tum
   vmp simulate office                     write office.clf (CARMEN log) and office.tum (truth)
@@ -36,7 +38,17 @@ class Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from vmp.cli import evaluate, export, info, live, localize, mapping, scenarios, simulate
+    from vmp.cli import (
+        evaluate,
+        export,
+        info,
+        live,
+        localize,
+        mapping,
+        merge,
+        scenarios,
+        simulate,
+    )
 
     parser = Parser(
         prog="vmp",
@@ -46,6 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"vmp-slam {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    for command in (simulate, mapping, localize, export, evaluate, info, live, scenarios):
+    for command in (simulate, mapping, localize, merge, export, evaluate, info, live,
+                    scenarios):
         command.add_parser(sub)
     return parser
