@@ -78,3 +78,22 @@ def test_rerun_flag_errors_are_one_line(tmp_path, capsys):
     assert main(["map", "lab", "--scans", "5", "--out", str(tmp_path), "--rerun",
                  str(tmp_path / "x.txt")]) == 2
     assert "--rerun expects a .rrd file" in capsys.readouterr().err
+
+
+def test_localizing_shows_the_saved_map_the_places_followed_and_the_pose(tmp_path):
+    assert main(["map", "lab", "--scans", "400", "--out", str(tmp_path / "m"), "-q"]) == 0
+    rrd = tmp_path / "loc.rrd"
+    assert main(["localize", "--map", str((tmp_path / "m" / "latest").resolve()), "lab",
+                 "--seed", "3", "--scans", "60", "--out", str(tmp_path / "l"), "--rerun",
+                 str(rrd), "-q"]) == 0
+    metrics = json.loads((tmp_path / "l" / "latest" / "metrics.json").read_text())
+    rows = defaultdict(int)
+    for ch in chunks(rrd):
+        rows[str(ch.entity_path)] += ch.num_rows
+    for path in ("/world/grid", "/world/milestones", "/world/hypotheses", "/world/robot",
+                 "/world/path/estimate", "/world/path/truth", "/log"):
+        assert rows.get(path, 0) > 0, path
+    assert rows["/world/hypotheses"] == 60  # the places followed, after every scan
+    localized = round(metrics["share of scans localized"] * 60)
+    # One point per localized scan, besides the path's static style row.
+    assert rows["/world/path/estimate"] - 1 == localized > 0
