@@ -188,3 +188,18 @@ def test_merge_refuses_two_maps_of_different_buildings(tmp_path, capsys):
     assert code == 2 and len(err) == 1
     assert "not localized in the saved map" in err[0] or "scanner" in err[0]
     assert not (tmp_path / "m").exists() or not any((tmp_path / "m").iterdir())
+
+
+def test_an_initial_pose_is_accepted_and_judged_like_any_place():
+    frames, truth = _run("lab", 9)
+    a, n = 300, 60
+    ref = Reference(truth[a:a + n], "ground truth", True)
+    data = _saved("lab")
+    right = LocalizationRun(data, FrameList(frames[a:a + n], "lab", ref),
+                            initial_pose=truth[a]).run()
+    assert _first_right(right, 0, n) <= WITHIN
+    # A wrong start is one more place to follow: it never wins over the right one.
+    wrong = LocalizationRun(data, FrameList(frames[a:a + n], "lab", ref),
+                            initial_pose=truth[a] + np.array([2.0, -1.5, 0.5])).run()
+    assert _first_right(wrong, 0, n) <= WITHIN
+    assert (wrong.errors()[wrong.localized] <= 0.5).all()
