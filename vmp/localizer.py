@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter, deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 import numpy as np
@@ -44,7 +44,7 @@ import numpy as np
 from vmp.config import MappingConfig
 from vmp.frontend import FrontEnd
 from vmp.fusion import CHI2_3DOF_99, PoseFilter
-from vmp.places import Places
+from vmp.places import Place, Places
 from vmp.registration import MIN_POINTS, fits, register
 from vmp.relocalization import Proposal, propose
 from vmp.types import FloatArray, ScanFrame, compose, relative, rotate_covariance
@@ -68,6 +68,7 @@ KEEP_RATIO = 0.8  # a scan scoring less than this share of a hypothesis's usual 
 RIVAL_FACTOR = 2.0
 RIVAL_MARGIN = 0.02
 REACH = 20.0  # live points scored: within this range (the submaps' reach, m)
+SWITCH_PLACE = 3.0  # a hypothesis this far from its submap's milestone takes the nearest (m)
 # How well a proposal's pose is known when a hypothesis starts from it (m, m, rad).
 PROPOSAL_SIGMA = (0.1, 0.1, math.radians(2.0))
 
@@ -93,6 +94,7 @@ class Hypothesis:
     declared: bool = False  # the localizer has declared it once (it may dead-reckon)
     scores: deque[float] = field(default_factory=lambda: deque(maxlen=WINDOW))  # 0: a miss
     fitted: deque[float] = field(default_factory=lambda: deque(maxlen=2 * WINDOW))
+    place: Place | None = None  # the submap it is registered against
 
     @property
     def pose(self) -> FloatArray:
@@ -123,10 +125,14 @@ class Localizer:
     """Localizes scan after scan in a saved map (``places``)."""
 
     def __init__(self, places: Places, config: MappingConfig | None = None,
-                 initial_pose: FloatArray | None = None) -> None:
+                 initial_pose: FloatArray | None = None, wheels: bool = True) -> None:
+        """``wheels``: where the scans carry odometry, move the hypotheses by it alone (their
+        registrations against the map do what scan odometry would); False keeps scan
+        odometry, for a front end that goes on mapping afterwards."""
         self.places = places
         self.config = config or MappingConfig()
         self.front = FrontEnd(self.config)
+        self._wheels = wheels
         self.stats: Counter[str] = Counter()
         self.hypotheses: list[Hypothesis] = []
         self.scan = -1
@@ -141,6 +147,9 @@ class Localizer:
     def step(self, frame: ScanFrame) -> Step:
         """Move, verify and decide for one scan."""
         self.scan += 1
+        if self.scan == 0 and self._wheels and frame.odom is not None:
+            self.front = FrontEnd(replace(self.config, scan_odometry=replace(
+                self.config.scan_odometry, enabled=False)))
         self.front.predict(frame)
         u, q = self.front.increment
         points = frame.points()
@@ -173,8 +182,10 @@ class Localizer:
     def _track(self, h: Hypothesis, points: FloatArray) -> None:
         """Register the scan where ``h`` puts it; a close fit within its gate corrects it,
         a scan that scores less than usual there is a miss."""
-        place = self.places.nearest(h.pose) if len(points) >= MIN_POINTS else None
-        if place is None:
+        place = h.place
+        if place is None or math.hypot(*(place.pose[:2] - h.pose[:2])) > SWITCH_PLACE:
+            place = h.place = self.places.nearest(h.pose)
+        if place is None or len(points) < MIN_POINTS:
             h.misses += 1
             h.scores.append(0.0)
             return

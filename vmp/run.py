@@ -106,7 +106,8 @@ class MappingRun:
             saved.map.stamps[:before].copy(), saved.trajectory[:before].copy())
         pipeline = None if saved is not None else Pipeline(geometry, self.config, self.view)
         localizer = (None if saved is None else
-                     Localizer(Places(saved.map, saved.milestones, saved.trajectory), self.config))
+                     Localizer(Places(saved.map, saved.milestones, saved.trajectory), self.config,
+                               wheels=False))
         unplaced = 0  # scans before the robot was localized in the saved map
         stamps: list[float] = []
         online: list[np.ndarray] = []
