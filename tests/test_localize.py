@@ -142,6 +142,7 @@ def test_localize_command_writes_its_results_folder(tmp_path, capsys):
     (["localize", "--map", "MAP", "lab", "--initial-pose", "1,2"], "X,Y,THETA"),
     (["localize", "--map", "MAP"], "give a SOURCE"),
     (["localize", "--map", "MAP", "lab", "--simulate", "lab"], "need --driver"),
+    (["localize", "--map", "MAP", "lab", "--duration", "5"], "--duration apply to a live"),
 ])
 def test_localize_mistakes_get_one_line_and_exit_2(tmp_path, capsys, argv, message):
     (tmp_path / "MAP").mkdir()

@@ -82,6 +82,12 @@ def run(args: argparse.Namespace) -> int:
                          "--simulate, not both")
     if args.driver is None and (args.port or args.simulate):
         raise InputError("--port and --simulate need --driver")
+    live_only = {"--baud": args.baud, "--odometry": args.odometry,
+                 "--no-odometry": args.no_odometry, "--duration": args.duration,
+                 "--speed": args.speed != 1.0, "--corruption": args.corruption}
+    given = [k for k, v in live_only.items() if v]
+    if args.driver is None and given:
+        raise InputError(f"{', '.join(given)} apply to a live scanner (--driver) only")
     initial = _initial_pose(args.initial_pose)
     config = mapping_config(args.config)
     saved = open_saved_map(args.map, args.method)
