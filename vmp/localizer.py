@@ -41,12 +41,13 @@ from enum import Enum
 
 import numpy as np
 
+from vmp.branch_bound import search
 from vmp.config import MappingConfig
 from vmp.frontend import FrontEnd
 from vmp.fusion import CHI2_3DOF_99, PoseFilter
 from vmp.places import Place, Places
 from vmp.registration import MIN_POINTS, fits, register
-from vmp.relocalization import Proposal, propose
+from vmp.relocalization import Proposal, propose, search_points
 from vmp.types import FloatArray, ScanFrame, compose, relative, rotate_covariance
 
 __all__ = ["Hypothesis", "Localizer", "State"]
@@ -69,6 +70,12 @@ RIVAL_FACTOR = 2.0
 RIVAL_MARGIN = 0.02
 REACH = 20.0  # live points scored: within this range (the submaps' reach, m)
 SWITCH_PLACE = 3.0  # a hypothesis this far from its submap's milestone takes the nearest (m)
+# Before a place is declared, the poses this far around it (m, rad) are searched for one that
+# explains the scan about as well (a pilaster 5 m along a corridor, a rack bay 2.5 m along an
+# aisle), leaving out those within ALIAS_APART of it.
+ALIAS_WINDOW = 6.0
+ALIAS_TURN = math.radians(5.0)
+ALIAS_APART = (0.5, math.radians(5.0))
 # How well a proposal's pose is known when a hypothesis starts from it (m, m, rad).
 PROPOSAL_SIGMA = (0.1, 0.1, math.radians(2.0))
 
@@ -136,6 +143,7 @@ class Localizer:
         self.stats: Counter[str] = Counter()
         self.hypotheses: list[Hypothesis] = []
         self.scan = -1
+        self._points = np.zeros((0, 2))  # this scan's points
         self._last_search = -SEARCH_EVERY
         self.state = State.SEARCHING
         self._lost = False  # localized once, and the scans stopped fitting
@@ -152,7 +160,7 @@ class Localizer:
                 self.config.scan_odometry, enabled=False)))
         self.front.predict(frame)
         u, q = self.front.increment
-        points = frame.points()
+        points = self._points = frame.points()
         for h in self.hypotheses:
             h.filter.predict(u, q)
             self._track(h, points)
@@ -241,6 +249,21 @@ class Localizer:
 
     # ---- the decision ----------------------------------------------------------------------
 
+    def _aliased(self, h: Hypothesis) -> bool:
+        """Whether another pose near ``h`` explains this scan about as well (the search
+        only ever looks around the milestones, and a corridor of pilasters may hold none
+        where the robot is)."""
+        place = h.place or self.places.nearest(h.pose)
+        live = search_points(self._points)
+        if place is None or len(live) < MIN_POINTS:
+            return False
+        center = relative(place.pose, h.pose)
+        mine = place.grid.score(live, center)
+        other = search(place.grid, live, center, ALIAS_WINDOW, ALIAS_TURN,
+                       exclude=(center, *ALIAS_APART))
+        return other is not None and (1.0 - other.score
+                                      < RIVAL_FACTOR * (1.0 - mine) + RIVAL_MARGIN)
+
     def _searching(self) -> bool:
         """Whether to look for the place: unless localized."""
         return self._trusted() is None
@@ -268,6 +291,9 @@ class Localizer:
             return State.AMBIGUOUS
         if best.searches < MIN_SEARCHES or best.fits < MIN_FITS or best.score < MIN_SCORE:
             return waiting
+        if self._aliased(best):
+            self.stats["places aliased nearby"] += 1
+            return State.AMBIGUOUS
         # The others are dropped: while localized nothing proposes places, so none of them
         # could gain a find, and following them would cost a registration a scan each.
         best.trusted = best.declared = True

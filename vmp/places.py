@@ -31,8 +31,8 @@ RESOLUTION = 0.1  # search grid cell (m)
 SIGMA = 0.1  # likelihood fall-off of the search grid (m)
 DEPTH = 5  # levels of block maxima
 VOXEL = 0.05  # one map point kept per cell of this size (m); 0.1 did worse on Intel
-MAX_WINDOW = 3.0  # the widest search window either way (m)
-CACHED = 64  # submaps kept
+MAX_WINDOW = 6.0  # the widest search window either way (m): the localizer's alias check
+CACHED = 32  # submaps kept (a search grid of one is a few MB)
 TURN_COST = 1.0  # choosing the nearest milestone, a radian of heading counts as this (m)
 
 

@@ -23,7 +23,7 @@ from vmp.places import Places
 from vmp.registration import MIN_POINTS, Registration, fits, register
 from vmp.types import FloatArray, ScanFrame, compose, relative
 
-__all__ = ["Proposal", "propose"]
+__all__ = ["Proposal", "propose", "search_points"]
 
 CANDIDATES = 4  # distinct places verified per search, best signatures first ...
 SHORTLIST = 32  # ... from this many milestones of the signature query
@@ -59,7 +59,7 @@ def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
         return []
     ranked = places.milestones.query(frame.ranges, frame.angle_min, frame.angle_increment,
                                      frame.max_range, max_candidates=SHORTLIST)
-    live = _live_points(points)
+    live = search_points(points)
     out: list[Proposal] = []
     chosen: list[FloatArray] = []
     for cand in ranked:  # a few dozen at most
@@ -96,7 +96,7 @@ def _covers(node: FloatArray, offset: float, pose: FloatArray) -> bool:
         abs(turn) <= WINDOW_THETA
 
 
-def _live_points(points: FloatArray) -> FloatArray:
+def search_points(points: FloatArray) -> FloatArray:
     """The live points searched with: within :data:`LIVE_RANGE`, evenly thinned."""
     pts = points[np.hypot(points[:, 0], points[:, 1]) <= LIVE_RANGE]
     if len(pts) > LIVE_POINTS:
