@@ -68,13 +68,14 @@ def open_live_source(args: argparse.Namespace, out: Path):
     folder ``out`` when it cannot be opened."""
     from drivers.scanners import open_live
 
-    if not (args.port or args.simulate):
-        raise InputError("--driver needs --port or --simulate")
-    if not 0.0 <= args.corruption < 1.0:
-        raise InputError(f"--corruption must lie in [0, 1), got {args.corruption}")
-    if args.port and (args.no_odometry or args.corruption or args.speed != 1.0):
-        raise InputError("--no-odometry, --corruption and --speed apply to --simulate only")
     try:
+        if not (args.port or args.simulate):
+            raise InputError("--driver needs --port or --simulate")
+        if not 0.0 <= args.corruption < 1.0:
+            raise InputError(f"--corruption must lie in [0, 1), got {args.corruption}")
+        if args.port and (args.no_odometry or args.corruption or args.speed != 1.0):
+            raise InputError("--no-odometry, --corruption and --speed apply to --simulate "
+                             "only")
         return open_live(args.driver, args.simulate or args.port, out / "live.clf",
                          simulate=bool(args.simulate), odometry=args.odometry,
                          no_odometry=args.no_odometry, scans=args.scans,
