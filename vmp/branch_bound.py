@@ -24,7 +24,20 @@ from scipy.ndimage import distance_transform_edt
 
 from vmp.types import FloatArray
 
-__all__ = ["Match", "SearchGrid", "likelihood_field", "search"]
+__all__ = ["Match", "SearchGrid", "likelihood_field", "search", "search_points"]
+
+
+SEARCH_POINTS = 100  # live points searched with (evenly thinned) ...
+SEARCH_RANGE = 12.0  # ... from those within this range (m)
+
+
+def search_points(points: FloatArray) -> FloatArray:
+    """The points of a scan ``(N, 2)`` a search uses: those within :data:`SEARCH_RANGE`,
+    evenly thinned to :data:`SEARCH_POINTS` (the search's cost grows with their number)."""
+    pts = points[np.hypot(points[:, 0], points[:, 1]) <= SEARCH_RANGE]
+    if len(pts) > SEARCH_POINTS:
+        pts = pts[np.linspace(0, len(pts) - 1, SEARCH_POINTS).round().astype(np.int64)]
+    return pts
 
 
 @dataclass(frozen=True)

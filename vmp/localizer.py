@@ -41,13 +41,13 @@ from enum import Enum
 
 import numpy as np
 
-from vmp.branch_bound import search
+from vmp.branch_bound import search, search_points
 from vmp.config import MappingConfig
 from vmp.frontend import FrontEnd
 from vmp.fusion import CHI2_3DOF_99, PoseFilter
 from vmp.places import Place, Places
 from vmp.registration import MIN_POINTS, fits, register
-from vmp.relocalization import Proposal, propose, search_points
+from vmp.relocalization import Proposal, propose
 from vmp.types import FloatArray, ScanFrame, compose, relative, rotate_covariance
 
 __all__ = ["Hypothesis", "Localizer", "State"]

@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from milestones.manager import MilestoneManager
-from vmp.branch_bound import Match, SearchGrid, search
+from vmp.branch_bound import Match, SearchGrid, search, search_points
 from vmp.config import MappingConfig
 from vmp.registration import Reference, Registration, fits, register
 from vmp.types import FloatArray, ScanFrame, relative
@@ -44,8 +44,6 @@ RESOLUTION = 0.1  # search grid cell (m)
 SIGMA = 0.1  # likelihood fall-off (m)
 DEPTH = 5  # levels of block maxima: the coarsest blocks are 3.2 m
 GRID_RADIUS = 20.0  # submap points farther than this from the milestone are left out (m)
-LIVE_POINTS = 100  # live points searched with (evenly thinned)
-LIVE_RANGE = 12.0  # live points beyond this range are left out (m)
 MIN_SCORE = 0.55  # mean likelihood of the live points at the find
 MAX_RATIO = 0.9  # the best pose elsewhere in the window scores at most this share of it
 SEPARATION_XY = 0.5  # "elsewhere": this far from the find (m) ...
@@ -127,7 +125,7 @@ class LoopSearch:
         windows = {mid: (wxy, wth) for mid, wxy, wth in near}
         ranked = self.milestones.rank(frame.ranges, frame.angle_min, frame.angle_increment,
                                       frame.max_range, list(windows))
-        points = _live_points(frame)
+        points = search_points(frame.points())
         if len(points) < 20:
             return []
         out = []
@@ -246,12 +244,3 @@ def _rivals(grid: SearchGrid, far: FloatArray, best: Match, rival: Match) -> boo
 def _within(points: FloatArray, reach: float) -> FloatArray:
     """The points within ``reach`` of their frame's origin."""
     return points[np.hypot(points[:, 0], points[:, 1]) <= reach]
-
-
-def _live_points(frame: ScanFrame) -> FloatArray:
-    """The live scan's points searched with: within :data:`LIVE_RANGE`, evenly thinned."""
-    pts = frame.points()
-    pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= LIVE_RANGE]
-    if len(pts) > LIVE_POINTS:
-        pts = pts[np.linspace(0, len(pts) - 1, LIVE_POINTS).round().astype(np.int64)]
-    return pts

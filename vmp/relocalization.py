@@ -17,13 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vmp.branch_bound import search
+from vmp.branch_bound import search, search_points
 from vmp.config import RegistrationConfig
 from vmp.places import Places
 from vmp.registration import MIN_POINTS, Registration, fits, register
 from vmp.types import FloatArray, ScanFrame, compose, relative
 
-__all__ = ["Proposal", "propose", "search_points"]
+__all__ = ["Proposal", "propose"]
 
 CANDIDATES = 4  # distinct places verified per search, best signatures first ...
 SHORTLIST = 32  # ... from this many milestones of the signature query
@@ -33,8 +33,6 @@ WINDOW_THETA = math.radians(20.0)  # ... and around the signature's heading
 MIN_SCORE = 0.55  # mean likelihood of the live points at a proposal
 MAX_SHIFT = 0.3  # ICP may move this far from the search's pose (m) ...
 MAX_TURN = math.radians(5.0)  # ... and turn this much
-LIVE_POINTS = 100  # live points searched with (evenly thinned)
-LIVE_RANGE = 12.0  # live points beyond this range are left out (m)
 
 
 @dataclass(frozen=True)
@@ -94,11 +92,3 @@ def _covers(node: FloatArray, offset: float, pose: FloatArray) -> bool:
     turn = (pose[2] - node[2] - offset + math.pi) % (2 * math.pi) - math.pi
     return math.hypot(pose[0] - node[0], pose[1] - node[1]) <= WINDOW_XY and \
         abs(turn) <= WINDOW_THETA
-
-
-def search_points(points: FloatArray) -> FloatArray:
-    """The live points searched with: within :data:`LIVE_RANGE`, evenly thinned."""
-    pts = points[np.hypot(points[:, 0], points[:, 1]) <= LIVE_RANGE]
-    if len(pts) > LIVE_POINTS:
-        pts = pts[np.linspace(0, len(pts) - 1, LIVE_POINTS).round().astype(np.int64)]
-    return pts
