@@ -34,7 +34,7 @@ from vmp.localizer import Localizer, State
 from vmp.mapfile import MapData, load_map
 from vmp.places import Places
 from vmp.progress import Progress
-from vmp.run import stop_on_signals
+from vmp.run import StoppableRun
 from vmp.source import Reference, Source, SourceReport, reference_for
 from vmp.tum import write_tum
 from vmp.types import FloatArray
@@ -150,7 +150,7 @@ class LocalizationResult:
         return metrics
 
 
-class LocalizationRun:
+class LocalizationRun(StoppableRun):
     """Localize the frames of one source in a saved map."""
 
     def __init__(self, saved: MapData, source: Source, config: MappingConfig | None = None,
@@ -166,14 +166,9 @@ class LocalizationRun:
         self.label = label or source.name
         self.interrupted: str | None = None
 
-    def stop(self, why: str = "stop") -> None:
-        """End the run after the current scan; safe from a signal handler or another thread."""
-        self.interrupted = self.interrupted or why
-        self.source.close()
-
     def run(self) -> LocalizationResult:
-        with stop_on_signals(self.stop):
-            return self._run()
+        """Localize until the source ends, ``scans`` are done, or :meth:`stop`."""
+        return super().run()
 
     def _run(self) -> LocalizationResult:
         places = Places(self.saved.map, self.saved.milestones,

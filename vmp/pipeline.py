@@ -78,7 +78,6 @@ class Pipeline:
         records a milestone there, joined to ``place`` by a loop edge."""
         self.front = front
         self._join = place
-        self.back.anchor = None
 
     # ---- one scan ----------------------------------------------------------------------------
 

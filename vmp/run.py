@@ -32,7 +32,7 @@ from vmp.source import Source, reference_for
 from vmp.types import BeamGeometry, ScanFrame
 from vmp.view import View
 
-__all__ = ["MappingRun", "stop_on_signals"]
+__all__ = ["MappingRun", "StoppableRun", "stop_on_signals"]
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -61,7 +61,28 @@ def stop_on_signals(on_signal: Callable[[str], None]) -> Iterator[None]:
             signal.signal(s, h)
 
 
-class MappingRun:
+class StoppableRun:
+    """A run over a source's frames that Ctrl-C, SIGTERM or :meth:`stop` end after the
+    current scan; subclasses step their frames in ``_run``."""
+
+    source: Source
+    interrupted: str | None = None
+
+    def stop(self, why: str = "stop") -> None:
+        """End the run after the current scan; safe from a signal handler or another thread."""
+        self.interrupted = self.interrupted or why
+        self.source.close()
+
+    def run(self):
+        """Run until the source ends, its scan limit, or :meth:`stop`."""
+        with stop_on_signals(self.stop):
+            return self._run()
+
+    def _run(self):
+        raise NotImplementedError
+
+
+class MappingRun(StoppableRun):
     """Map the frames of one source into a vector map with milestones.
 
     ``scans`` stops the run after that many frames; ``progress`` counts them; ``label`` names
@@ -88,15 +109,9 @@ class MappingRun:
         self.label = label or source.name
         self.interrupted: str | None = None
 
-    def stop(self, why: str = "stop") -> None:
-        """End the run after the current scan; safe from a signal handler or another thread."""
-        self.interrupted = self.interrupted or why
-        self.source.close()
-
     def run(self) -> Result:
         """Map until the source ends, ``scans`` are mapped, or :meth:`stop`; finish the map."""
-        with stop_on_signals(self.stop):
-            return self._run()
+        return super().run()
 
     def _run(self) -> Result:
         geometry = self.source.geometry

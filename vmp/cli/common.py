@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from vmp.cli.args import positive_float
@@ -16,7 +17,7 @@ from vmp.results import Result, format_metrics, link_latest
 from vmp.run import MappingRun, stop_on_signals
 from vmp.source import Source
 
-__all__ = ["add_run_options", "map_and_write", "mapping_config", "open_view"]
+__all__ = ["add_run_options", "finish", "map_and_write", "mapping_config", "open_view"]
 
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
@@ -75,13 +76,28 @@ def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespac
         if out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # nothing was mapped: no empty results folder
         raise
-    late: list[str] = []
-    with stop_on_signals(late.append):  # a signal now waits until everything is written
+    def write() -> dict:
         metrics = result.write(out, args.resolution)
-        link_latest(out)
         if view is not None:
             grid = result.grid(args.resolution)
             view.grid(grid.cells, grid.resolution, grid.origin)
+        return metrics
+
+    return result, finish(result, write, out, args, view, label, [
+        ("trajectory", "trajectory.tum"), ("map", "map.vmpmap"),
+        ("grid", "grid.yaml (+ grid.pgm, grid.png, grid.npy)"),
+        ("contours", "contours.geojson"), ("graph", "graph.json")])
+
+
+def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespace,
+           view, label: str, files: list[tuple[str, str]]) -> int:
+    """Write a run's results folder (``write``), point ``latest`` at it and tell the user;
+    returns the exit code (128 + the signal's number when one ended the run, or came while
+    writing, which waits until everything is written)."""
+    late: list[str] = []
+    with stop_on_signals(late.append):
+        metrics = write()
+        link_latest(out)
     summary = result.report.summary(label)
     if summary and not args.quiet:
         print(summary, file=sys.stderr)
@@ -89,10 +105,8 @@ def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespac
         print(format_metrics(metrics))
         state = f"interrupted by {result.interrupted}; " if result.interrupted else ""
         print(f"\n{state}results in {out} (also {args.out / 'latest'}):")
-        print(f"  trajectory  {out / 'trajectory.tum'}")
-        print(f"  map         {out / 'map.vmpmap'}")
-        print(f"  grid        {out / 'grid.yaml'} (+ grid.pgm, grid.png, grid.npy)")
-        print(f"  contours    {out / 'contours.geojson'};  graph {out / 'graph.json'}")
+        for what, name in files:
+            print(f"  {what:<10}  {out / name}")
     elif result.interrupted:
         print(f"vmp: interrupted by {result.interrupted} after {result.scans} scans; "
               f"results in {out}", file=sys.stderr)
@@ -101,4 +115,4 @@ def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespac
             view.hold()
         view.close()
     ended = result.interrupted or (late[0] if late else None)
-    return result, 128 + signal.Signals[ended].value if ended else 0
+    return 128 + signal.Signals[ended].value if ended else 0

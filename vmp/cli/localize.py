@@ -5,17 +5,15 @@ from __future__ import annotations
 import argparse
 import math
 import shutil
-import signal
 from pathlib import Path
 
 import numpy as np
 
 from vmp.cli.args import nonneg_int
-from vmp.cli.common import add_run_options, mapping_config, open_view
+from vmp.cli.common import add_run_options, finish, mapping_config, open_view
 from vmp.cli.live import add_live_options, open_live_source
 from vmp.errors import InputError
-from vmp.results import format_metrics, link_latest, new_results_dir
-from vmp.run import stop_on_signals
+from vmp.results import new_results_dir
 
 __all__ = ["add_parser", "run"]
 
@@ -75,7 +73,7 @@ def _initial_pose(text: str | None) -> np.ndarray | None:
 
 def run(args: argparse.Namespace) -> int:
     from drivers import open_source
-    from vmp.localization import LocalizationRun, open_saved_map
+    from vmp.localization import open_saved_map
 
     if (args.source is None) == (args.driver is None):
         raise InputError("give a SOURCE (scenario or recording) or --driver with --port or "
@@ -104,31 +102,18 @@ def run(args: argparse.Namespace) -> int:
     try:
         if view is not None:
             _show_saved_map(view, saved, args.resolution)
-        result = _localize(LocalizationRun, saved, source, config, view, args, label, initial,
-                           out)
+        result = _localize(saved, source, config, view, args, label, initial, out)
     finally:
         if live:
             source.shutdown()
-    late: list[str] = []
-    with stop_on_signals(late.append):  # a signal now waits until everything is written
-        metrics = result.write(out)
-        link_latest(out)
-    if not args.quiet:
-        print(format_metrics(metrics))
-        state = f"interrupted by {result.interrupted}; " if result.interrupted else ""
-        print(f"\n{state}results in {out} (also {args.out / 'latest'}):")
-        print(f"  trajectory  {out / 'trajectory.tum'} (localized scans, the map's frame)")
-        print(f"  states      {out / 'states.csv'}")
-    if view is not None:
-        if args.rerun == "serve" and not result.interrupted:
-            view.hold()
-        view.close()
-    ended = result.interrupted or (late[0] if late else None)
-    return 128 + signal.Signals[ended].value if ended else 0
+    return finish(result, lambda: result.write(out), out, args, view, label, [
+        ("trajectory", "trajectory.tum (localized scans, the map's frame)"),
+        ("states", "states.csv")])
 
 
-def _localize(run_class, saved, source, config, view, args, label, initial, out):
+def _localize(saved, source, config, view, args, label, initial, out):
     """Run the localizer with a progress line; no empty results folder left on failure."""
+    from vmp.localization import LocalizationRun
     from vmp.progress import Progress
 
     total = source.length if args.scans is None or source.length is None else min(
@@ -136,8 +121,9 @@ def _localize(run_class, saved, source, config, view, args, label, initial, out)
     progress = Progress(total or args.scans, f"localizing {source.name}",
                         enabled=False if args.quiet else None)
     try:
-        run = run_class(saved, source, config, view, map_path=str(args.map), scans=args.scans,
-                        initial_pose=initial, progress=progress, label=label)
+        run = LocalizationRun(saved, source, config, view, map_path=str(args.map),
+                              scans=args.scans, initial_pose=initial, progress=progress,
+                              label=label)
     except BaseException:
         progress.close()
         shutil.rmtree(out, ignore_errors=True)  # nothing ran: not even a recording to keep
