@@ -378,7 +378,7 @@ def _parse_laser(kind: str, parts: list[str], params: dict[str, str], index: int
     if kind == "FLASER" and "robot_front_laser_max" not in params:
         # Without the laser's range limit, a SICK's no-return codes (8.191, 16.383 and
         # 32.767 m in its 8, 16 and 32 m mm-modes: all bits of the range set) are not ranges.
-        no_return |= np.isin(np.round(ranges * 1000.0), _SICK_NO_RETURN_MM)
+        no_return |= np.isin(np.round(np.minimum(ranges, 1e6) * 1000.0), _SICK_NO_RETURN_MM)
     ranges = np.where(no_return, np.inf, ranges)
     return ScanFrame(stamp=stamp, ranges=ranges, angle_min=angle_min, angle_increment=inc,
                      max_range=max_range, odom=odom, index=index)

@@ -9,7 +9,7 @@ from drivers.breezyslam import BreezySlamLog
 from drivers.carmen import CarmenLog
 from drivers.dpslam import DpSlamLog
 from drivers.rosbag import RosBagLog, is_ros2_bag
-from drivers.textlog import LineLog, open_text
+from drivers.textlog import DAMAGE, LineLog, open_text
 from vmp.errors import InputError
 
 __all__ = ["FORMATS", "detect_format", "open_recording"]
@@ -48,7 +48,7 @@ def detect_format(path: Path) -> str:
                 if len(parts) > 700 and parts[0].replace(".", "", 1).isdigit():
                     return "breezyslam"
                 break
-    except (OSError, EOFError) as exc:
+    except DAMAGE as exc:
         raise InputError(f"{path}: cannot read: {exc}") from exc
     raise InputError(f"{path}: not a recording this program knows (formats: "
                      f"{', '.join(FORMATS)}; choose one with --format)")

@@ -118,7 +118,7 @@ def _ros1_messages(path: Path, topics: set[str] | None = None
                         if topics is None or topic in topics:
                             sec, nsec = struct.unpack("<II", f_[b"time"])
                             yield topic, msgtype, definition, sec * 10**9 + nsec, d
-        except (struct.error, KeyError, StopIteration) as exc:
+        except (struct.error, KeyError, StopIteration, UnicodeDecodeError) as exc:
             raise InputError(f"{path}: corrupt ROS 1 bag ({exc!r})") from exc
 
 
@@ -283,21 +283,32 @@ class RosBagLog(LineLog):
             if isinstance(m, Exception):
                 self._bad(k, f"bad odometry message: {m}")
                 continue
-            if is_tf:
-                for tr in m.transforms:
-                    child = tr.child_frame_id.lstrip("/")
-                    if child in BASE_FRAMES and "odom" in tr.header.frame_id:
-                        q, v = tr.transform.rotation, tr.transform.translation
-                        t.append(_stamp(tr.header, t_ns))
-                        p.append([v.x, v.y, _yaw(q)])
-            else:
-                pose = m.pose.pose
-                t.append(_stamp(m.header, t_ns))
-                p.append([pose.position.x, pose.position.y, _yaw(pose.orientation)])
+            try:
+                got = self._odometry_poses(m, t_ns, is_tf)
+            except (AttributeError, TypeError, ValueError, OverflowError) as exc:  # damaged
+                self._bad(k, f"bad odometry message: {type(exc).__name__}: {exc}")
+                continue
+            t.extend(s for s, _ in got)
+            p.extend(q for _, q in got)
         stamps, poses = np.array(t), np.array(p).reshape(-1, 3)
         good = np.isfinite(stamps) & np.isfinite(poses).all(axis=1)
         order = np.argsort(stamps[good], kind="stable")
         return stamps[good][order], poses[good][order]
+
+    @staticmethod
+    def _odometry_poses(m, t_ns: int, is_tf: bool) -> list[tuple[float, list[float]]]:
+        """(stamp, [x, y, yaw]) of the robot in an Odometry or tf message."""
+        if not is_tf:
+            pose = m.pose.pose
+            return [(_stamp(m.header, t_ns),
+                     [pose.position.x, pose.position.y, _yaw(pose.orientation)])]
+        out = []
+        for tr in m.transforms:
+            child = tr.child_frame_id.lstrip("/")
+            if child in BASE_FRAMES and "odom" in tr.header.frame_id:
+                q, v = tr.transform.rotation, tr.transform.translation
+                out.append((_stamp(tr.header, t_ns), [v.x, v.y, _yaw(q)]))
+        return out
 
     def __iter__(self) -> Iterator[ScanFrame]:
         self.problems, self.skipped, self.backwards, self.scans = [], 0, 0, 0
@@ -308,7 +319,8 @@ class RosBagLog(LineLog):
             try:
                 if isinstance(m, Exception):
                     raise ValueError(str(m))
-                r = np.asarray(m.ranges, dtype=np.float64)
+                with np.errstate(invalid="ignore", over="ignore"):  # damage: not ranges
+                    r = np.asarray(m.ranges, dtype=np.float64)
                 ok = np.isfinite(r) & (r >= m.range_min) & (r <= m.range_max) & (r > 0)
                 stamp = _stamp(m.header, t_ns)
                 frame = ScanFrame(stamp=stamp, ranges=np.where(ok, r, np.inf),
@@ -317,7 +329,7 @@ class RosBagLog(LineLog):
                                   max_range=float(m.range_max),
                                   odom=interpolate_pose(odom_t, odom_p, stamp),
                                   index=self.scans)
-            except (ValueError, AttributeError) as exc:
+            except (ValueError, AttributeError, TypeError, OverflowError) as exc:
                 self._bad(k, f"bad LaserScan message: {exc}")
                 continue
             if frame.stamp < last:

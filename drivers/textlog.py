@@ -5,7 +5,9 @@ from __future__ import annotations
 import gzip
 import io
 import os
+import struct
 import zipfile
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
@@ -14,26 +16,85 @@ from vmp.errors import InputError
 from vmp.source import Reference, SourceReport
 from vmp.types import BeamGeometry, ScanFrame
 
-__all__ = ["LineLog", "open_text"]
+__all__ = ["DAMAGE", "LineLog", "open_text"]
+
+# What reading a damaged gzip or zip container raises (a bad CRC or header, a cut-off stream,
+# a corrupt deflate block); gzip.BadGzipFile is an OSError.
+DAMAGE = (OSError, EOFError, zlib.error, zipfile.BadZipFile)
+
+
+class _FirstMember(io.RawIOBase):
+    """The first member of a zip archive whose central directory is lost (a download cut
+    off): inflated from its local header on, up to where the data ends."""
+
+    def __init__(self, path: Path) -> None:
+        self._file = open(path, "rb")
+        head = self._file.read(30)
+        if len(head) < 30 or head[:4] != b"PK\x03\x04":
+            self._file.close()
+            raise InputError(f"{path}: a damaged zip archive (no member header)")
+        method, = struct.unpack_from("<H", head, 8)
+        name_len, extra_len = struct.unpack_from("<HH", head, 26)
+        if method not in (0, 8):
+            self._file.close()
+            raise InputError(f"{path}: a damaged zip archive (compression {method} of its "
+                             "first member is not deflate)")
+        self._file.seek(30 + name_len + extra_len)
+        self._inflate = zlib.decompressobj(-zlib.MAX_WBITS) if method == 8 else None
+        self._pending = b""
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:  # type: ignore[override]
+        while not self._pending:
+            raw = self._file.read(65536)
+            if self._inflate is None:
+                self._pending = raw
+                break
+            if not raw:
+                if not self._inflate.eof:
+                    raise EOFError("the archive ends inside its first member")
+                break
+            self._pending = self._inflate.decompress(raw)
+            if self._inflate.eof:
+                self._file.seek(0, io.SEEK_END)  # what follows the member is not text
+        n = min(len(buffer), len(self._pending))
+        buffer[:n] = self._pending[:n]
+        self._pending = self._pending[n:]
+        return n
+
+    def close(self) -> None:
+        self._file.close()
+        super().close()
 
 
 def open_text(path: Path) -> IO[str]:
     """A text file, unpacked on the fly when it is gzip or a zip archive (by magic bytes).
 
-    From a zip archive the largest member that is not macOS metadata is read.
+    From a zip archive the largest member that is not macOS metadata is read; from one whose
+    directory at the end is lost (cut off), the first member as far as it goes.
     """
     with open(path, "rb") as probe:
         magic = probe.read(4)
     if magic[:2] == b"\x1f\x8b":
         return gzip.open(path, "rt", encoding="ascii", errors="replace")
     if magic == b"PK\x03\x04":
-        archive = zipfile.ZipFile(path)
-        members = [m for m in archive.infolist()
-                   if not m.is_dir() and not m.filename.startswith("__MACOSX")]
-        if not members:
-            raise InputError(f"{path}: an empty zip archive")
-        member = max(members, key=lambda m: m.file_size)
-        return io.TextIOWrapper(archive.open(member), encoding="ascii", errors="replace")
+        try:
+            archive = zipfile.ZipFile(path)
+        except zipfile.BadZipFile:
+            return io.TextIOWrapper(io.BufferedReader(_FirstMember(path)), encoding="ascii",
+                                    errors="replace")
+        try:
+            members = [m for m in archive.infolist()
+                       if not m.is_dir() and not m.filename.startswith("__MACOSX")]
+            if not members:
+                raise InputError(f"{path}: an empty zip archive")
+            member = max(members, key=lambda m: m.file_size)
+            return io.TextIOWrapper(archive.open(member), encoding="ascii", errors="replace")
+        except (zipfile.BadZipFile, zlib.error, EOFError, ValueError,
+                NotImplementedError) as exc:
+            raise InputError(f"{path}: a damaged zip archive ({exc})") from exc
     return open(path, encoding="ascii", errors="replace")
 
 
@@ -59,6 +120,7 @@ class LineLog:
         self.scans = 0
         self._geometry: BeamGeometry | None = None
         self._closed = False
+        self.damaged = ""  # where and how the file was found damaged (what came before is read)
 
     @property
     def geometry(self) -> BeamGeometry:
@@ -81,9 +143,12 @@ class LineLog:
         return None
 
     def report(self) -> SourceReport:
+        counts: dict[str, int | float | str] = {f"bad {self.item}s skipped": self.skipped,
+                                                "stamps running backwards": self.backwards}
+        if self.damaged:
+            counts["damaged"] = self.damaged
         return SourceReport(self.item, self.skipped, self.backwards, list(self.problems),
-                            {f"bad {self.item}s skipped": self.skipped,
-                             "stamps running backwards": self.backwards})
+                            counts, damaged=self.damaged)
 
     def notes(self) -> list[tuple[str, str]]:
         """What else there is to say about the recording, as (heading, text) lines."""
@@ -104,16 +169,34 @@ class LineLog:
         if len(self.problems) < 1000:
             self.problems.append((no, what))
 
+    def _damage(self, where: str, exc: BaseException) -> None:
+        """The file is damaged at ``where``: stop there (what came before is kept and the
+        damage reported), or with ``strict`` raise :class:`InputError`."""
+        what = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        if self.strict:
+            raise InputError(f"{self.path}: damaged {where} ({what})") from exc
+        self.damaged = f"damaged {where} ({what}); the rest of the file is not read"
+
+    def _lines(self, f: IO[str]) -> Iterator[tuple[int, str]]:
+        """Numbered lines of ``f`` up to the end or to where its container is damaged."""
+        no = 0
+        try:
+            for no, line in enumerate(f, start=1):
+                yield no, line
+        except DAMAGE as exc:
+            self._damage(f"after line {no}", exc)
+
     def __iter__(self) -> Iterator[ScanFrame]:
         self.problems, self.skipped, self.backwards, self.scans = [], 0, 0, 0
         self._closed = False
+        self.damaged = ""
         try:
             f = open_text(self.path)
         except OSError as exc:
             raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
         with f:
             last_stamp = -float("inf")
-            for frame in self._frames(enumerate(f, start=1)):
+            for frame in self._frames(self._lines(f)):
                 if frame.stamp < last_stamp:
                     self._bad(self._line, f"stamp {frame.stamp:.6f} runs backwards (latest "
                                           f"before {last_stamp:.6f}); scan kept", skip=False)

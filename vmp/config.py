@@ -96,6 +96,35 @@ class MappingConfig:
     map: MapConfig = field(default_factory=MapConfig)
 
 
+# The range each number may take: (low, high, whether low itself is allowed). A value
+# outside is refused on load, naming the key and the range; every number field has one
+# (tests/test_config.py checks).
+LIMITS: dict[str, tuple[float, float, bool]] = {
+    "motion.trans_per_m": (0.0, 10.0, True),
+    "motion.rot_per_m": (0.0, math.pi, True),
+    "motion.rot_per_rad": (0.0, 10.0, True),
+    "scan_odometry.keyframe_distance": (0.0, 100.0, False),
+    "scan_odometry.keyframe_turn": (0.0, math.pi, False),
+    "registration.max_rms": (0.0, 10.0, False),
+    "registration.min_inliers": (0.0, 1.0, False),
+    "milestones.length": (8, 4096, True),
+    "milestones.clamp_range": (0.0, 1000.0, False),
+    "milestones.keep": (0.0, 1.0, False),
+    "milestones.record_distance": (0.0, 1000.0, False),
+    "milestones.record_turn": (0.0, 2 * math.pi, False),
+    "milestones.max_heading": (0.0, math.pi, False),
+    "milestones.recognition_radius": (0.0, 1000.0, False),
+    "matching.candidates": (0, 100, True),
+    "matching.max_ratio": (0.0, 1.0, False),
+    "matching.retry_max_ratio": (0.0, 1.0, False),
+    "matching.retry_min_inliers": (0.0, 1.0, False),
+    "loops.switch_margin": (0.0, 100.0, True),
+    "loops.separation": (1, 1_000_000, True),
+    "loops.adjust_chi2": (0.0, 1e6, True),
+    "map.no_return_free_range": (0.0, 1000.0, True),
+}
+
+
 def config_to_dict(config: Any) -> dict:
     """Nested plain values of a (nested) configuration dataclass."""
     out = {}
@@ -110,21 +139,38 @@ def config_to_dict(config: Any) -> dict:
     return out
 
 
-def _value(current: Any, value: Any, where: str) -> Any:
-    """``value`` checked against the type of the default ``current``; raises InputError."""
+def _finite_number(value: Any) -> bool:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an integer beyond any float
+        return False
+
+
+def _in_limits(value: float, key: str, where: str) -> None:
+    low, high, closed = LIMITS[key]
+    if value > high or value < low or (value == low and not closed):
+        lower = f">= {low:g}" if closed else f"> {low:g}"
+        raise InputError(f"{where}: expected a number {lower} and <= {high:g}, got {value!r}")
+
+
+def _value(current: Any, value: Any, where: str, key: str) -> Any:
+    """``value`` checked against the type of the default ``current`` and the key's range in
+    :data:`LIMITS`; raises InputError."""
     if isinstance(current, bool):
         if not isinstance(value, bool):
             raise InputError(f"{where}: expected true or false, got {value!r}")
         return value
     if isinstance(current, int | float):
-        if isinstance(value, bool) or not isinstance(value, int | float) \
-                or not math.isfinite(value):
+        if not _finite_number(value):
             raise InputError(f"{where}: expected a number, got {value!r}")
         if isinstance(current, int):
             if not float(value).is_integer():
                 raise InputError(f"{where}: expected a whole number, got {value!r}")
-            return int(value)
-        return float(value)
+            value = int(value)
+        _in_limits(value, key, where)
+        return value if isinstance(current, int) else float(value)
     if isinstance(current, str):
         if not isinstance(value, str):
             raise InputError(f"{where}: expected a word, got {value!r}")
@@ -151,7 +197,7 @@ def config_from_dict(doc: Any, source: str, cls: type = MappingConfig,
         if dataclasses.is_dataclass(current):
             changes[key] = config_from_dict(value, source, type(current), where)
         else:
-            changes[key] = _value(current, value, f"{source}: {where}")
+            changes[key] = _value(current, value, f"{source}: {where}", where)
     try:
         return dataclasses.replace(defaults, **changes)
     except (TypeError, ValueError) as exc:

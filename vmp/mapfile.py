@@ -1,15 +1,20 @@
 """Save a whole map to one file and load it back exactly: segments, milestones, graph, config.
 
 The file is an ``.npz`` (loaded with ``allow_pickle=False``) whose ``header`` entry is UTF-8
-JSON: format name and version, beam geometry, the configuration used, and the segments'
-anchors and handovers. Every other entry is a numeric array.
+JSON: format name and version, beam geometry, the configuration used, the segments' anchors
+and handovers, and (from version 2) a SHA-256 checksum of every other entry, which are numeric
+arrays. A file is checked on load (checksum, shapes, finite poses, segment and milestone ids in
+range) and a damaged one refused with one line; version 1 files (no checksum) still load.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
 import os
 import zipfile
+import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -25,7 +30,9 @@ from vmp.vector_map import BeamGeometry, VectorMap
 __all__ = ["FORMAT", "VERSION", "MapData", "load_map", "save_map"]
 
 FORMAT = "vmp-slam map"
-VERSION = 1
+VERSION = 2  # 2: the header holds a checksum of the arrays
+READS = (1, 2)  # the versions this program reads
+MAX_EXTENT = 1e6  # m: a pose farther out than this is damage, not a building
 _MS = "milestones/"
 
 
@@ -89,13 +96,94 @@ def save_map(path: str | os.PathLike[str], vmap: VectorMap, milestones: Mileston
         "edge_info": np.array([e.information for e in graph.edges]).reshape(-1, 3, 3),
     }
     arrays.update({_MS + k: v for k, v in ms.items()})
+    header["checksum"] = checksum(arrays)
     with atomic_write(path, "wb") as f:
         np.savez_compressed(f, header=np.frombuffer(json.dumps(header).encode(),
                                                     dtype=np.uint8), **arrays)
 
 
+def checksum(arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 over the arrays' names, types, shapes and bytes, in name order."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _shape(a: dict[str, np.ndarray], key: str, shape: tuple, kind: str,
+           finite: bool = False) -> np.ndarray:
+    """``a[key]`` checked for its shape (``-1``: any length) and kind of number."""
+    arr = a[key]
+    if arr.dtype.kind not in kind or arr.ndim != len(shape) or any(
+            want not in (-1, got) for want, got in zip(shape, arr.shape, strict=True)):
+        want = "x".join("N" if n == -1 else str(n) for n in shape)
+        raise ValueError(f"entry {key!r} is {arr.dtype} {arr.shape}, expected {want}")
+    if finite and not np.isfinite(arr).all():
+        raise ValueError(f"entry {key!r} holds a value that is not finite")
+    return arr
+
+
+def _check(header: dict, a: dict[str, np.ndarray]) -> None:
+    """Raise ValueError naming what in a loaded map file's contents is out of shape or range."""
+    g = header["geometry"]
+    if not isinstance(g, dict) or not isinstance(g.get("num_beams"), int) or not (
+            0 < g["num_beams"] <= 100_000) or not all(
+            isinstance(g.get(k), int | float) and math.isfinite(g[k])
+            for k in ("angle_min", "angle_increment", "max_range")) or g["max_range"] <= 0:
+        raise ValueError("its beam geometry is not a scanner's")
+    n = g["num_beams"]
+    scans = len(a["stamps"])
+    points = _shape(a, "points", (scans, n, 2), "f", finite=True)
+    if scans and float(np.abs(points).max()) > g["max_range"] * 1.01:
+        raise ValueError("a scan's end point lies beyond the scanner's range")
+    _shape(a, "hits", (scans, (n + 7) // 8), "u")
+    _shape(a, "stamps", (scans,), "f", finite=True)
+    for key in ("rel", "trajectory", _MS + "poses"):
+        if float(np.abs(_shape(a, key, (-1, 3), "f", finite=True)[:, :2]).max(
+                initial=0.0)) > MAX_EXTENT:
+            raise ValueError(f"entry {key!r} holds a pose farther than {MAX_EXTENT:g} m out")
+    _shape(a, "rel", (scans, 3), "f")
+    _shape(a, "trajectory", (scans, 3), "f")
+    segment = _shape(a, "segment", (scans,), "iu")
+    anchors, ends = header["segment_anchor"], header["segment_end"]
+    if not isinstance(anchors, list) or not isinstance(ends, list) or len(ends) != len(anchors):
+        raise ValueError("its segment anchors and ends do not pair up")
+    if scans and (segment[0] != 0 or np.any(np.diff(segment) < 0) or np.any(
+            np.diff(segment) > 1) or segment[-1] >= len(anchors)):
+        raise ValueError("its scans' segment numbers do not run 0, 1, ... over its segments")
+    ids = _shape(a, _MS + "ids", (-1,), "iu")
+    m = len(ids)
+    _shape(a, _MS + "poses", (m, 3), "f", finite=True)
+    _shape(a, _MS + "stamps", (m,), "f", finite=True)
+    lengths = _shape(a, _MS + "scan_lengths", (m,), "iu")
+    if (lengths < 0).any() or int(lengths.sum()) != len(a[_MS + "scans"]):
+        raise ValueError("its milestones' scan lengths do not add up")
+    if m and (np.any(np.diff(ids) <= 0) or ids[0] < 0):
+        raise ValueError("its milestone ids are not increasing")
+    known = set(ids.tolist())
+    if any(not isinstance(x, int) or x not in known for x in anchors):
+        raise ValueError("a segment is anchored at a milestone the map does not hold")
+    if not all(e is None or (isinstance(e, list) and len(e) == 2 and e[0] in known)
+               for e in ends):
+        raise ValueError("a segment hands over to a milestone the map does not hold")
+    ij = _shape(a, "edge_ij", (-1, 2), "iu")
+    e = len(ij)
+    _shape(a, "edge_z", (e, 3), "f", finite=True)
+    info = _shape(a, "edge_info", (e, 3, 3), "f", finite=True)
+    if e and (np.abs(info - info.transpose(0, 2, 1)).max() > 1e-6 * max(
+            1.0, float(np.abs(info).max())) or (np.diagonal(info, axis1=1, axis2=2) < 0).any()):
+        raise ValueError("a graph edge's information matrix is not symmetric positive")
+    if not np.isin(ij, ids).all():
+        raise ValueError("a graph edge joins a milestone the map does not hold")
+    if not isinstance(header["edge_kinds"], list) or len(header["edge_kinds"]) != e:
+        raise ValueError("its graph edges and their kinds do not pair up")
+
+
 def load_map(path: str | os.PathLike[str]) -> MapData:
-    """Read a map file; a missing, corrupt or foreign file raises :class:`InputError`."""
+    """Read a map file; a missing, corrupt, damaged or foreign file raises :class:`InputError`
+    with one line."""
     path = Path(path)
     try:
         data = np.load(path, allow_pickle=False)
@@ -108,14 +196,21 @@ def load_map(path: str | os.PathLike[str]) -> MapData:
         raise InputError(f"{path}: no such file") from None
     except InputError:
         raise
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError,
-            UnicodeDecodeError) as exc:
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError, zlib.error,
+            UnicodeDecodeError, NotImplementedError) as exc:
         raise InputError(f"{path}: not a readable vmp-slam map ({exc})") from exc
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise InputError(f"{path}: not a vmp-slam map file")
-    if header.get("version") != VERSION:
+    if header.get("version") not in READS:
         raise InputError(f"{path}: map file version {header.get('version')}, this program "
-                         f"reads version {VERSION}")
+                         f"reads versions {', '.join(map(str, READS))}")
+    if header["version"] >= 2 and header.get("checksum") != checksum(a):
+        raise InputError(f"{path}: a damaged vmp-slam map (its checksum does not match)")
+    try:
+        _check(header, a)
+    except (KeyError, TypeError, ValueError) as exc:
+        what = f"no entry {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise InputError(f"{path}: a damaged vmp-slam map ({what})") from exc
     try:
         vmap = VectorMap(BeamGeometry(**header["geometry"]), header.get("free_range"))
         vmap.restore(header["segment_anchor"], header["segment_end"], a["points"], a["hits"],

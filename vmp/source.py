@@ -46,15 +46,18 @@ class SourceReport:
     problems: list[tuple[int, str]] = field(default_factory=list)  # (item number, what)
     counts: dict[str, int | float | str] = field(default_factory=dict)  # join the metrics
     status: str = ""  # a few words on the source's state, for a progress line
+    damaged: str = ""  # where the file was found damaged and reading stopped ('' if not)
 
     def summary(self, name: str) -> str:
-        """One line on what was skipped or odd, with the first few places ('' if nothing)."""
+        """One line on what was skipped, odd or damaged, with the first few places ('' if
+        nothing)."""
+        damaged = f"{name}: {self.damaged}" if self.damaged else ""
         if not self.problems:
-            return ""
+            return damaged
         first = "; ".join(f"{self.item} {no}: {what}" for no, what in self.problems[:3])
         more = "; ..." if len(self.problems) > 3 else ""
         return (f"{name}: {self.skipped} bad {self.item}s skipped, {self.backwards} stamps "
-                f"running backwards ({first}{more})")
+                f"running backwards ({first}{more})" + (f"; {self.damaged}" if damaged else ""))
 
 
 @runtime_checkable

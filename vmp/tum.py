@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vmp.errors import InputError
 from vmp.fileio import atomic_write, read_table
 from vmp.types import FloatArray, wrap_angle
 
@@ -31,6 +32,13 @@ def write_tum(path: str | Path, stamps: FloatArray, poses: FloatArray) -> None:
 def read_tum(path: str | Path) -> tuple[FloatArray, FloatArray]:
     """Read a TUM file into stamps ``(N,)`` and planar poses ``(N, 3)``, yaw from the quaternion."""
     a = read_table(path, 8, "t x y z qx qy qz qw")
-    qx, qy, qz, qw = a[:, 4], a[:, 5], a[:, 6], a[:, 7]
+    q = a[:, 4:8]
+    scale = np.abs(q).max(axis=1, initial=0.0)
+    norm = scale * np.linalg.norm(q / np.maximum(scale, 1e-300)[:, None], axis=1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > 0.01)
+    if bad.size:
+        raise InputError(f"{path}: pose {bad[0] + 1}: the quaternion's norm is "
+                         f"{norm[bad[0]]:g}, expected 1 (t x y z qx qy qz qw)")
+    qx, qy, qz, qw = (q / norm[:, None]).T
     yaw = np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy**2 + qz**2))
     return a[:, 0], np.column_stack([a[:, 1], a[:, 2], wrap_angle(yaw)])

@@ -99,7 +99,7 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
         metrics = write()
         link_latest(out)
     summary = result.report.summary(label)
-    if summary and not args.quiet:
+    if summary and (not args.quiet or result.report.damaged):  # damage is never kept quiet
         print(summary, file=sys.stderr)
     if not args.quiet:
         print(format_metrics(metrics))

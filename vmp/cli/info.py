@@ -58,4 +58,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"bad {item}s{' ' * (9 - len(item))}{r.skipped} skipped, {r.backwards} stamps "
           f"running backwards"
           + (f" (first: {item} {r.problems[0][0]}: {r.problems[0][1]})" if r.problems else ""))
+    if r.damaged:
+        print(f"damaged       {r.damaged}")
     return 0
