@@ -59,6 +59,14 @@ class ScenarioError(InputError):
     """A scenario file that cannot be used; the message names the file and the key."""
 
 
+# What one scenario may ask of a run (more is refused up front with the figure rather than
+# exhausting memory or running for days): scans, beams per scan, stored beams, wall segments.
+MAX_SCANS = 1_000_000
+MAX_BEAMS = 10_000
+MAX_STORED_BEAMS = 200_000_000  # end points the map would hold: 1.6 GB of float32 pairs
+MAX_WALL_SEGMENTS = 100_000
+
+
 SICK_LMS200 = BeamGeometry(181, -math.pi / 2, math.radians(1.0), 8.0)  # 1 degree, 8 m mode
 
 
@@ -241,6 +249,7 @@ def _ring_segments(pts: FloatArray, closed: bool) -> FloatArray:
 
 def _read_walls(node: _Node) -> FloatArray:
     segments = []
+    total = 0
     for item in node.seq(min_len=1):
         keys = item.mapping({"polygon", "polyline", "box", "repeat"})
         shapes = [k for k in ("polygon", "polyline", "box") if k in keys]
@@ -258,9 +267,16 @@ def _read_walls(node: _Node) -> FloatArray:
         if "repeat" in keys:
             rep = keys["repeat"].mapping({"count", "step"}, {"count", "step"})
             count = rep["count"].integer(minimum=1)
+            if count * len(segs) > MAX_WALL_SEGMENTS:
+                raise rep["count"].fail(f"at most {MAX_WALL_SEGMENTS // len(segs):,} copies "
+                                        f"(a scenario holds at most {MAX_WALL_SEGMENTS:,} "
+                                        "wall segments)")
             dx, dy = rep["step"].vector()
             offsets = np.arange(count)[:, None] * np.array([dx, dy, dx, dy])
             segs = (segs[None, :, :] + offsets[:, None, :]).reshape(-1, 4)
+        total += len(segs)
+        if total > MAX_WALL_SEGMENTS:
+            raise node.fail(f"at most {MAX_WALL_SEGMENTS:,} wall segments in all")
         segments.append(segs)
     return np.vstack(segments)
 
@@ -284,6 +300,8 @@ def _read_trajectory(node: _Node) -> Trajectory:
     laps = keys["laps"].integer(minimum=1) if "laps" in keys else 1
     if laps > 1 and not closed:
         raise keys["laps"].fail("laps only on a closed trajectory (closed: true)")
+    if laps * len(wp) > MAX_SCANS:
+        raise keys["laps"].fail(f"at most {MAX_SCANS // len(wp):,} laps of these waypoints")
     turn = (math.radians(keys["turn_rate_deg"].number(positive=True))
             if "turn_rate_deg" in keys else math.radians(45.0))
     heading = (math.radians(keys["start_heading_deg"].number())
@@ -297,6 +315,8 @@ def _read_sensor(node: _Node) -> SensorModel:
     d = SensorModel()
     g = d.geometry
     beams = keys["beams"].integer(minimum=2) if "beams" in keys else g.num_beams
+    if beams > MAX_BEAMS:
+        raise keys["beams"].fail(f"an integer <= {MAX_BEAMS:,}")
     amin = (math.radians(keys["angle_min_deg"].number()) if "angle_min_deg" in keys
             else g.angle_min)
     inc = (math.radians(keys["angle_increment_deg"].number(positive=True))
@@ -360,6 +380,31 @@ def _read_stations(node: _Node) -> Stations:
     return Stations(home, nearby)
 
 
+def expected_scans(traj: Trajectory, rate_hz: float) -> float:
+    """How many scans driving ``traj`` takes at ``rate_hz`` (at most a few more than the
+    simulator makes: each turn is counted as a half turn)."""
+    wp = traj.waypoints
+    legs = np.vstack([wp, wp[:1]]) if traj.closed else wp
+    lengths = np.hypot(*np.diff(legs, axis=0).T)
+    speeds = traj.speeds if traj.closed else traj.speeds[:-1]
+    lap = float(np.sum(lengths / speeds)) + len(lengths) * math.pi / traj.turn_rate
+    return lap * traj.laps * rate_hz + 1
+
+
+def _check_budget(scn: Scenario, root: _Node) -> None:
+    """Refuse a scenario whose run would be unbounded in scans or memory, with the figure."""
+    scans = expected_scans(scn.trajectory, scn.sensor.rate_hz)
+    beams = scn.sensor.geometry.num_beams
+    if not scans <= MAX_SCANS:
+        raise ScenarioError(
+            f"{root.source}: trajectory: expected a drive of at most {MAX_SCANS:,} scans; its "
+            f"waypoints, speeds and laps at {scn.sensor.rate_hz:g} Hz make {scans:,.0f}")
+    if scans * beams > MAX_STORED_BEAMS:
+        raise ScenarioError(
+            f"{root.source}: sensor: expected at most {MAX_STORED_BEAMS:,} beams over the run; "
+            f"{scans:,.0f} scans of {beams:,} beams make {scans * beams:,.0f}")
+
+
 def parse_scenario(doc: Any, source: str) -> Scenario:
     """Build a :class:`Scenario` from a parsed YAML document; ``source`` names it in errors."""
     root = _Node(source, "", doc)
@@ -368,7 +413,7 @@ def parse_scenario(doc: Any, source: str) -> Scenario:
          "obstacles", "stations"},
         {"walls", "trajectory"},
     )
-    return Scenario(
+    scn = Scenario(
         name=keys["name"].text() if "name" in keys else Path(source).stem,
         source=source,
         walls=_read_walls(keys["walls"]),
@@ -380,6 +425,8 @@ def parse_scenario(doc: Any, source: str) -> Scenario:
         obstacles=_read_obstacles(keys["obstacles"]) if "obstacles" in keys else (),
         stations=_read_stations(keys["stations"]) if "stations" in keys else None,
     )
+    _check_budget(scn, root)
+    return scn
 
 
 def builtin_scenarios() -> dict[str, str]:

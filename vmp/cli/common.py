@@ -13,7 +13,14 @@ from vmp.config import MappingConfig, load_config
 from vmp.errors import InputError
 from vmp.mapfile import MapData
 from vmp.progress import Progress
-from vmp.results import Result, format_metrics, link_latest
+from vmp.results import (
+    Result,
+    format_metrics,
+    is_incomplete,
+    link_latest,
+    mark_complete,
+    remove_if_empty,
+)
 from vmp.run import MappingRun, stop_on_signals
 from vmp.source import Source
 
@@ -73,8 +80,7 @@ def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespac
                          saved=saved)
         result = run.run()
     except BaseException:
-        if out.is_dir() and not any(out.iterdir()):
-            out.rmdir()  # nothing was mapped: no empty results folder
+        remove_if_empty(out)  # nothing was mapped: no empty results folder
         raise
     def write() -> dict:
         metrics = result.write(out, args.resolution)
@@ -97,6 +103,7 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
     late: list[str] = []
     with stop_on_signals(late.append):
         metrics = write()
+        mark_complete(out)
         link_latest(out)
     summary = result.report.summary(label)
     if summary and (not args.quiet or result.report.damaged):  # damage is never kept quiet
@@ -116,3 +123,11 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
         view.close()
     ended = result.interrupted or (late[0] if late else None)
     return 128 + signal.Signals[ended].value if ended else 0
+
+
+def warn_if_incomplete(path: Path) -> None:
+    """Say on stderr when ``path`` is (a file in) a results folder left incomplete."""
+    folder = path if path.is_dir() else path.parent
+    if is_incomplete(folder):
+        print(f"vmp: warning: {folder} is an incomplete results folder (the run writing it "
+              "stopped before every file was written); using what it holds", file=sys.stderr)

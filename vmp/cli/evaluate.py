@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 from vmp.cli.args import positive_int
+from vmp.cli.common import warn_if_incomplete
 from vmp.errors import InputError
 
 __all__ = ["add_parser", "run"]
@@ -39,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     if not traj.is_file():
         raise InputError(f"{args.result}: no trajectory (expected a TUM file or a results "
                          "folder with trajectory.tum)")
+    warn_if_incomplete(traj)
     stamps, poses = read_tum(traj)
     if args.ground_truth:
         gs, gp = read_tum(args.ground_truth)

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from vmp.cli.args import positive_float
+from vmp.cli.common import warn_if_incomplete
 from vmp.errors import InputError
 
 __all__ = ["add_parser", "run"]
@@ -54,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not any((args.grid, args.png, args.npy, args.contours, args.graph)):
         raise InputError("nothing to export: give --grid, --png, --npy, --contours or --graph")
+    warn_if_incomplete(args.result)
     data = load_map(_map_file(args.result))
     poses = data.trajectory
     polys = data.map.polygons(poses)

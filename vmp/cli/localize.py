@@ -10,10 +10,16 @@ from pathlib import Path
 import numpy as np
 
 from vmp.cli.args import nonneg_int
-from vmp.cli.common import add_run_options, finish, mapping_config, open_view
+from vmp.cli.common import (
+    add_run_options,
+    finish,
+    mapping_config,
+    open_view,
+    warn_if_incomplete,
+)
 from vmp.cli.live import add_live_options, open_live_source
 from vmp.errors import InputError
-from vmp.results import new_results_dir
+from vmp.results import new_results_dir, remove_if_empty
 
 __all__ = ["add_parser", "run"]
 
@@ -88,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{', '.join(given)} apply to a live scanner (--driver) only")
     initial = _initial_pose(args.initial_pose)
     config = mapping_config(args.config)
+    warn_if_incomplete(args.map)
     saved = open_saved_map(args.map, args.method)
     live = args.driver is not None
     if live:
@@ -131,8 +138,7 @@ def _localize(saved, source, config, view, args, label, initial, out):
     try:
         return run.run()
     except BaseException:
-        if out.is_dir() and not any(out.iterdir()):
-            out.rmdir()  # nothing was localized (a live run keeps its recording)
+        remove_if_empty(out)  # nothing was localized (a live run keeps its recording)
         raise
 
 

@@ -7,7 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from vmp.cli.args import nonneg_int, positive_int
-from vmp.cli.common import add_run_options, map_and_write, mapping_config
+from vmp.cli.common import add_run_options, map_and_write, mapping_config, warn_if_incomplete
 from vmp.errors import InputError
 from vmp.results import new_results_dir
 
@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
 
         if args.no_milestones:
             raise InputError("--continue needs milestones: leave out --no-milestones")
+        warn_if_incomplete(args.continue_from)
         saved = open_saved_map(args.continue_from)
     source = open_source(args.source, seed=args.seed, scans=args.scans, strict=args.strict,
                          fmt=args.format, scan_topic=args.scan_topic,

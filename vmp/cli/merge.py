@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vmp.cli.common import add_run_options, map_and_write, mapping_config
+from vmp.cli.common import add_run_options, map_and_write, mapping_config, warn_if_incomplete
 from vmp.results import new_results_dir
 
 __all__ = ["add_parser", "run"]
@@ -39,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
     from vmp.localization import open_saved_map
     from vmp.source import FrameList
 
+    warn_if_incomplete(args.first)
+    warn_if_incomplete(args.second)
     first = open_saved_map(args.first)
     second = open_saved_map(args.second)
     first.check_beams(second.map.geometry, str(args.second))
