@@ -144,13 +144,14 @@ class Simulator:
         odo_seq, sensor_seq = np.random.SeedSequence(self.seed).spawn(2)
         self._sensor_seq = sensor_seq
         stamps, poses = drive(traj, self.sensor.rate_hz)
+        # The odometry of the whole drive, then cut: a run of the first N scans sees the same
+        # scans as the whole run does (a resumed run checks that it reads the same frames).
+        odom = noisy_odometry(poses, scenario.odometry, np.random.default_rng(odo_seq))
         if max_scans is not None:
-            stamps, poses = stamps[:max_scans], poses[:max_scans]
+            stamps, poses, odom = stamps[:max_scans], poses[:max_scans], odom[:max_scans]
         self.stamps: FloatArray = stamps
         self.true_poses: FloatArray = poses
-        self.odom_poses: FloatArray = noisy_odometry(
-            poses, scenario.odometry, np.random.default_rng(odo_seq)
-        )
+        self.odom_poses: FloatArray = odom
 
     def __len__(self) -> int:
         return len(self.stamps)

@@ -17,9 +17,11 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import numpy as np
 
+from vmp.checkpoint import Every, fingerprint, load_checkpoint, save_checkpoint
 from vmp.config import MappingConfig
 from vmp.errors import InputError
 from vmp.localizer import Localizer, State
@@ -30,7 +32,7 @@ from vmp.progress import Progress
 from vmp.results import Result
 from vmp.source import Source, reference_for
 from vmp.types import BeamGeometry, ScanFrame
-from vmp.view import View
+from vmp.view import NullView, View
 
 __all__ = ["MappingRun", "StoppableRun", "stop_on_signals"]
 
@@ -92,12 +94,17 @@ class MappingRun(StoppableRun):
     milestones joined to the old ones where the robot was found. The result holds both
     sessions' scans (before this one, the saved map's poses stand in for the filter's and
     the odometry's).
+
+    With ``checkpoint`` (a file) and ``every``, the run writes its whole state there that
+    often (:mod:`vmp.checkpoint`); with ``resume`` (such a file) it starts from that state,
+    skipping the frames of the source it had used: the result is the uninterrupted run's.
     """
 
     def __init__(self, source: Source, config: MappingConfig | None = None,
                  view: View | None = None, *, scans: int | None = None,
                  progress: Progress | None = None, label: str | None = None,
-                 saved: MapData | None = None) -> None:
+                 saved: MapData | None = None, checkpoint: Path | None = None,
+                 every: Every | None = None, resume: Path | None = None) -> None:
         if saved is not None:
             saved.check_beams(source.geometry, label or source.name)
         self.saved = saved
@@ -108,34 +115,71 @@ class MappingRun(StoppableRun):
         self.progress = progress
         self.label = label or source.name
         self.interrupted: str | None = None
+        self.checkpoint = checkpoint
+        self.every = every
+        self.skip, self.last = 0, ""  # frames a resumed run skips; the last one's fingerprint
+        self.state = self._resume(resume) if resume is not None else self._start()
 
     def run(self) -> Result:
         """Map until the source ends, ``scans`` are mapped, or :meth:`stop`; finish the map."""
         return super().run()
 
-    def _run(self) -> Result:
-        geometry = self.source.geometry
+    def _start(self) -> dict:
+        """The state of a run that has used no frame yet."""
         saved = self.saved
         before = 0 if saved is None else len(saved.map)  # the saved map's scans
-        old = (np.zeros(0), np.zeros((0, 3))) if saved is None else (
-            saved.map.stamps[:before].copy(), saved.trajectory[:before].copy())
-        pipeline = None if saved is not None else Pipeline(geometry, self.config, self.view)
-        localizer = (None if saved is None else
-                     Localizer(Places(saved.map, saved.milestones, saved.trajectory), self.config,
-                               wheels=False))
-        unplaced = 0  # scans before the robot was localized in the saved map
-        stamps: list[float] = []
-        online: list[np.ndarray] = []
-        odometry: list[np.ndarray] = []
+        return {
+            "pipeline": None if saved is not None else Pipeline(self.source.geometry,
+                                                                 self.config, self.view),
+            "old_stamps": np.zeros(0) if saved is None else saved.map.stamps[:before].copy(),
+            "old_poses": np.zeros((0, 3)) if saved is None else saved.trajectory[:before].copy(),
+            "unplaced": 0,  # scans before the robot was localized in the saved map
+            "stamps": [], "online": [], "odometry": [],
+            "seconds": 0.0,  # mapping time before this process
+        }
+
+    def _resume(self, path: Path) -> dict:
+        """The state a checkpoint holds; the frames it used are skipped when running."""
+        state, self.skip, self.last, label = load_checkpoint(
+            path, {"view": self.view or NullView()})
+        if label != self.source.name:
+            raise InputError(f"{path}: a checkpoint of {label}, not of {self.source.name}")
+        self.config = state["pipeline"].config
+        self.saved = None  # the pipeline holds the saved map already
+        return state
+
+    def _save(self, frames: int, frame: ScanFrame, seconds: float) -> None:
+        s = dict(self.state, seconds=seconds)
+        save_checkpoint(self.checkpoint, s, frames, fingerprint(frame), self.source.name,
+                        {"view": s["pipeline"].view})
+
+    def _run(self) -> Result:
+        geometry = self.source.geometry
+        s = self.state
+        stamps, online, odometry = s["stamps"], s["online"], s["odometry"]
+        localizer = (None if s["pipeline"] is not None else
+                     Localizer(Places(self.saved.map, self.saved.milestones,
+                                      self.saved.trajectory), self.config, wheels=False))
         started = time.perf_counter()
+        saved_at = (started, len(stamps))  # when, and after how many scans, the last checkpoint
+        frames = 0  # frames taken from the source
         try:
             for frame in self.source:
+                frames += 1
+                if frames <= self.skip:
+                    if frames == self.skip and fingerprint(frame) != self.last:
+                        raise InputError(f"{self.label}: frame {frames} is not the one the "
+                                         "checkpoint ended at: another source, or changed")
+                    if self.progress is not None:
+                        self.progress.update()
+                    continue
                 if frame.geometry != geometry:
                     raise InputError(f"{self.label}: scan {len(stamps)} has other beams "
                                      f"({frame.geometry}) than the first ({geometry})")
+                pipeline = s["pipeline"]
                 if pipeline is None:
-                    unplaced += 1
-                    pipeline = self._place(localizer, frame, geometry)
+                    s["unplaced"] += 1
+                    s["pipeline"] = self._place(localizer, frame, geometry)
                 else:
                     pipeline.step(frame)
                     stamps.append(frame.stamp)
@@ -145,28 +189,41 @@ class MappingRun(StoppableRun):
                     self.progress.status = self.source.report().status
                     self.progress.update()
                 if self.interrupted or (self.scans is not None
-                                         and unplaced + len(stamps) >= self.scans):
+                                         and s["unplaced"] + len(stamps) >= self.scans):
                     break
+                now = time.perf_counter()
+                if (self.checkpoint is not None and self.every is not None
+                        and s["pipeline"] is not None
+                        and self.every.due(len(stamps) - saved_at[1], now - saved_at[0])):
+                    self._save(frames, frame, s["seconds"] + now - started)
+                    saved_at = (time.perf_counter(), len(stamps))
         finally:
             self.source.close()
             if self.progress is not None:
                 self.progress.close()
+        if frames < self.skip:
+            raise InputError(f"{self.label}: the source ends after {frames} frames, before "
+                             f"the {self.skip} the checkpoint had used")
+        pipeline = s["pipeline"]
+        unplaced = s["unplaced"]
         if not stamps:
             why = f" (interrupted by {self.interrupted})" if self.interrupted else ""
-            if saved is not None:
+            if pipeline is None:
                 raise InputError(f"{self.label}: not localized in the saved map in {unplaced} "
                                  f"scans{why}: nothing to go on from (is it the same "
                                  "building?)")
             raise InputError(f"{self.label}: no scans to map{why}")
-        if saved is not None:
+        if len(s["old_stamps"]):
             pipeline.stats["scans before localized in the saved map"] = unplaced
         pipeline.finish()
         trajectory = pipeline.trajectory()
-        elapsed = time.perf_counter() - started
-        reference = reference_for(self.source, len(stamps)) if saved is None else None
-        return Result(self.label, self.config, pipeline, np.r_[old[0], stamps], trajectory,
-                      np.vstack([old[1], *online]), np.vstack([old[1], *odometry]), reference,
-                      self.source.report(), elapsed, self.interrupted)
+        elapsed = s["seconds"] + time.perf_counter() - started
+        reference = (reference_for(self.source, len(stamps)) if not len(s["old_stamps"])
+                     else None)
+        old_stamps, old_poses = s["old_stamps"], s["old_poses"]
+        return Result(self.label, self.config, pipeline, np.r_[old_stamps, stamps], trajectory,
+                      np.vstack([old_poses, *online]), np.vstack([old_poses, *odometry]),
+                      reference, self.source.report(), elapsed, self.interrupted)
 
     def _place(self, localizer: Localizer, frame: ScanFrame, geometry: BeamGeometry
                ) -> Pipeline | None:

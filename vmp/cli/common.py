@@ -8,6 +8,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from vmp.checkpoint import CHECKPOINT, Every, remove_checkpoint
 from vmp.cli.args import positive_float
 from vmp.config import MappingConfig, load_config
 from vmp.errors import InputError
@@ -62,13 +63,16 @@ def open_view(target: str | None, quiet: bool):
 
 def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespace,
                   out: Path, label: str, scans: int | None = None,
-                  saved: MapData | None = None) -> tuple[Result, int]:
+                  saved: MapData | None = None, every: Every | None = None,
+                  resume: Path | None = None) -> tuple[Result, int]:
     """Map ``source`` into the results folder ``out`` and print what happened.
 
     Ctrl-C or SIGTERM while mapping end the run: what was mapped so far is finished, written
     and reported, and the exit code (128 + the signal's number) says it was interrupted.
-    With ``saved``, mapping goes on in that map (:class:`~vmp.run.MappingRun`). Returns the
-    result and the exit code.
+    With ``saved``, mapping goes on in that map (:class:`~vmp.run.MappingRun`). With
+    ``every``, a checkpoint is written into ``out`` that often (removed once the results are
+    written); ``resume`` (a checkpoint file) starts from one. Returns the result and the exit
+    code.
     """
     view = open_view(args.rerun, args.quiet)
     total = source.length if scans is None or source.length is None else min(scans,
@@ -77,13 +81,16 @@ def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespac
                         enabled=False if args.quiet else None)
     try:
         run = MappingRun(source, config, view, scans=scans, progress=progress, label=label,
-                         saved=saved)
+                         saved=saved, checkpoint=out / CHECKPOINT if every else None,
+                         every=every, resume=resume)
         result = run.run()
     except BaseException:
         remove_if_empty(out)  # nothing was mapped: no empty results folder
         raise
+
     def write() -> dict:
         metrics = result.write(out, args.resolution)
+        remove_checkpoint(out)
         if view is not None:
             grid = result.grid(args.resolution)
             view.grid(grid.cells, grid.resolution, grid.origin)

@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from vmp.checkpoint import CHECKPOINT, Every
 from vmp.cli.args import nonneg_int, positive_int
 from vmp.cli.common import add_run_options, map_and_write, mapping_config, warn_if_incomplete
 from vmp.errors import InputError
@@ -52,6 +53,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     help="go on mapping in a saved map (a results folder of 'vmp map'): the "
                     "scans are localized in it first, no start pose needed; the result holds "
                     "both sessions")
+    mp.add_argument("--checkpoint-every", metavar="EVERY", default="60s",
+                    help="write the run's whole state into its results folder this often: "
+                    "seconds ('60s', the default), scans ('500') or 'off'; a run killed "
+                    "(even by SIGKILL or a power cut) goes on from there with --resume")
+    mp.add_argument("--resume", metavar="RESULT", type=Path,
+                    help="go on with a run that was killed: its (incomplete) results folder, "
+                    "which holds checkpoint.npz; give the same SOURCE (and --scans, --seed); "
+                    "the result is the one the uninterrupted run gives")
     mp.add_argument("--strict", action="store_true",
                     help="stop at the first bad line of a recording (default: skip, count, "
                     "report)")
@@ -79,8 +88,30 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--continue needs milestones: leave out --no-milestones")
         warn_if_incomplete(args.continue_from)
         saved = open_saved_map(args.continue_from)
+    every = Every.parse(args.checkpoint_every)
+    resume = _resume_file(args) if args.resume is not None else None
     source = open_source(args.source, seed=args.seed, scans=args.scans, strict=args.strict,
                          fmt=args.format, scan_topic=args.scan_topic,
                          odom_topic=args.odom_topic)
-    out = new_results_dir(args.out, source.name)
-    return map_and_write(source, config, args, out, args.source, args.scans, saved)[1]
+    out = args.resume if resume is not None else new_results_dir(args.out, source.name)
+    return map_and_write(source, config, args, out, args.source, args.scans, saved,
+                         every=every, resume=resume)[1]
+
+
+def _resume_file(args: argparse.Namespace) -> Path:
+    """The checkpoint of the results folder ``--resume`` names; other options that would
+    change the run are refused (the checkpoint holds the run's configuration)."""
+    changes = [name for name, given in (
+        ("--config", args.config), ("--method", args.method),
+        ("--no-milestones", args.no_milestones), ("--no-scan-odometry", args.no_scan_odometry),
+        ("--continue", args.continue_from)) if given]
+    if changes:
+        raise InputError(f"--resume goes on with the run's own settings: leave out "
+                         f"{', '.join(changes)}")
+    folder = args.resume
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a results folder (give the folder of the killed run)")
+    if not (folder / CHECKPOINT).is_file():
+        raise InputError(f"{folder}: no {CHECKPOINT} here: the run wrote none (shorter than "
+                         "--checkpoint-every) or finished")
+    return folder / CHECKPOINT
