@@ -12,7 +12,14 @@ from collections.abc import Iterator
 import numpy as np
 
 from drivers.raycast import cast_discs, cast_segments
-from drivers.scenario import MovingObstacle, OdometryModel, Scenario, Trajectory
+from drivers.scenario import (
+    MAX_SCANS,
+    MovingObstacle,
+    OdometryModel,
+    Scenario,
+    Trajectory,
+    expected_scans,
+)
 from vmp.source import Reference, SourceReport
 from vmp.types import BeamGeometry, FloatArray, ScanFrame, relative, wrap_angle
 
@@ -135,6 +142,10 @@ class Simulator:
             if laps != traj.laps and not traj.closed:
                 raise ValueError(f"{scenario.name}: laps need a closed trajectory")
             traj = dataclasses.replace(traj, laps=laps)
+            scans = expected_scans(traj, scenario.sensor.rate_hz)
+            if scans > MAX_SCANS:
+                raise ValueError(f"{scenario.name}: {laps:,} laps make {scans:,.0f} scans, "
+                                 f"more than the {MAX_SCANS:,} a simulated run may make")
         self.scenario = scenario
         self.name = scenario.name
         self.sensor = scenario.sensor

@@ -241,3 +241,9 @@ def test_an_incomplete_results_folder_says_so_when_opened(tmp_path, capsys):
     assert run_cli(["map", "lab", "--scans", "20", "--out", str(tmp_path / "runs"), "-q"]) == 0
     done = (tmp_path / "runs" / "latest").resolve()
     assert not (done / INCOMPLETE).exists() and (done / "map.vmpmap").is_file()
+
+
+def test_laps_asked_on_the_command_line_are_held_to_the_same_bound(tmp_path, capsys):
+    assert run_cli(["simulate", "office", "--laps", "1000000", "--out",
+                    str(tmp_path / "o.clf")]) == 2
+    assert "more than the 1,000,000 a simulated run may make" in capsys.readouterr().err

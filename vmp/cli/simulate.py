@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers.scenario import load_scenario
     from drivers.simulator import Simulator
     from vmp.progress import Progress
+    from vmp.run import stop_on_signals
     from vmp.tum import write_tum
 
     scenario = load_scenario(args.scenario)
@@ -55,8 +58,20 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out and --ground-truth name the same file: {out}")
     progress = Progress(len(sim), f"simulating {scenario.name}",
                         enabled=False if args.quiet else None)
-    n = write_carmen(out, progress.wrap(sim), comment=f"scenario {scenario.name}, seed {sim.seed}")
-    write_tum(gt, sim.stamps, sim.true_poses)
+    ended: list[str] = []  # the signal that ended the run early: the scans so far are written
+
+    def stop(name: str) -> None:
+        ended.append(name)
+        sim.close()
+
+    with stop_on_signals(stop):
+        n = write_carmen(out, progress.wrap(sim),
+                         comment=f"scenario {scenario.name}, seed {sim.seed}")
+        write_tum(gt, sim.stamps[:n], sim.true_poses[:n])
+    if ended:
+        print(f"vmp simulate: interrupted by {ended[0]} after {n} scans; the log and the "
+              f"ground truth hold them ({out}, {gt})", file=sys.stderr)
+        return 128 + signal.Signals[ended[0]].value
     if not args.quiet:
         steps = np.diff(sim.true_poses[:, :2], axis=0)
         length = float(np.hypot(steps[:, 0], steps[:, 1]).sum())
