@@ -159,7 +159,10 @@ class LineLog:
         self._closed = True
 
     def _bad(self, no: int, what: str, skip: bool = True) -> None:
-        if self.strict:
+        """Item ``no`` could not be used (``skip``) or is odd but kept (a stamp running
+        backwards, a property of some recordings): recorded; with ``strict`` an unusable
+        item raises :class:`InputError`."""
+        if self.strict and skip:
             where = f"{self.path}:{no}" if self.item == "line" else f"{self.path}: {self.item} {no}"
             raise InputError(f"{where}: {what}")
         if skip:

@@ -247,3 +247,19 @@ def test_laps_asked_on_the_command_line_are_held_to_the_same_bound(tmp_path, cap
     assert run_cli(["simulate", "office", "--laps", "1000000", "--out",
                     str(tmp_path / "o.clf")]) == 2
     assert "more than the 1,000,000 a simulated run may make" in capsys.readouterr().err
+
+
+def test_strict_stops_at_a_bad_line_but_keeps_stamps_that_run_backwards(tmp_path):
+    text = _intel_text(40).split(b"\n")
+    lasers = [i for i, line in enumerate(text) if line.startswith(b"FLASER")]
+    a, b = lasers[3], lasers[4]
+    text[a], text[b] = text[b], text[a]  # two scans swapped: the second's stamp runs back
+    swapped = tmp_path / "swapped.clf"
+    swapped.write_bytes(b"\n".join(text))
+    log = open_recording(swapped, strict=True)
+    assert len(list(log)) == len(lasers) and log.report().backwards >= 1
+    text[lasers[6]] = b"FLASER 180 junk"
+    bad = tmp_path / "bad.clf"
+    bad.write_bytes(b"\n".join(text))
+    with pytest.raises(InputError, match=rf"bad\.clf:{lasers[6] + 1}: "):
+        list(open_recording(bad, strict=True))

@@ -62,8 +62,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "which holds checkpoint.npz; give the same SOURCE (and --scans, --seed); "
                     "the result is the one the uninterrupted run gives")
     mp.add_argument("--strict", action="store_true",
-                    help="stop at the first bad line of a recording (default: skip, count, "
-                    "report)")
+                    help="stop at the first bad line of a recording, or where its file is "
+                    "damaged (default: skip, count, report; read up to the damage). Stamps "
+                    "that run backwards are kept and reported either way")
     mp.set_defaults(run=run)
 
 
