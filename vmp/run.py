@@ -150,8 +150,12 @@ class MappingRun(StoppableRun):
 
     def _save(self, frames: int, frame: ScanFrame, seconds: float) -> None:
         s = dict(self.state, seconds=seconds)
+        stats = s["pipeline"].stats
+        stats["checkpoints written"] += 1
+        t = time.perf_counter()
         save_checkpoint(self.checkpoint, s, frames, fingerprint(frame), self.source.name,
                         {"view": s["pipeline"].view})
+        stats["checkpoint seconds"] += time.perf_counter() - t
 
     def _run(self) -> Result:
         geometry = self.source.geometry
