@@ -106,6 +106,27 @@ def _saved_map(workdir: Path) -> bytes:
     return path.read_bytes()
 
 
+def _saved_milestones(workdir: Path) -> bytes:
+    from drivers import open_source
+    from milestones.store import save_milestones
+    from vmp.run import MappingRun
+
+    result = MappingRun(open_source("lab", scans=60)).run()
+    path = workdir / "seed-milestones.npz"
+    save_milestones(path, result.pipeline.milestones)
+    return path.read_bytes()
+
+
+def _saved_grid(workdir: Path) -> bytes:
+    from drivers import open_source
+    from vmp.export import write_ros_map
+    from vmp.run import MappingRun
+
+    result = MappingRun(open_source("lab", scans=60)).run()
+    write_ros_map(workdir / "seed-grid.yaml", result.grid(0.1))
+    return (workdir / "seed-grid.pgm").read_bytes()
+
+
 def _ros2_bag(workdir: Path, storage: str) -> bytes:
     """A ROS 2 storage file (sqlite3 or MCAP) of six simulated scans with odometry."""
     from rosbags.rosbag2 import StoragePlugin, Writer
@@ -222,6 +243,24 @@ def _read_map(path: Path) -> None:
     saved.frames()
 
 
+def _read_milestones(path: Path) -> None:
+    from milestones.store import StoreError, load_milestones
+
+    try:
+        load_milestones(path)
+    except StoreError as exc:  # the store's own one-line error (milestones imports no vmp)
+        raise InputError(str(exc)) from exc
+
+
+def _read_grid(path: Path) -> None:
+    from vmp.export import read_ros_map
+
+    meta = path.with_suffix(".yaml")
+    meta.write_text(f"image: {path.name}\nresolution: 0.05\norigin: [-1.0, -2.0, 0.0]\n"
+                    "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    read_ros_map(meta)
+
+
 def _read_config(path: Path) -> None:
     from vmp.config import load_config
 
@@ -270,6 +309,8 @@ def parsers() -> list[Parser]:
         Parser("mcap", ".mcap", _read_recording),
         Parser("ros2 sqlite3", ".db3", _read_recording),
         Parser("map file", ".vmpmap", _read_map),
+        Parser("milestones", ".npz", _read_milestones),
+        Parser("grid (pgm)", ".pgm", _read_grid),
         Parser("configuration", ".yaml", _read_config),
         Parser("scenario", ".yaml", _read_scenario),
         Parser("relations", ".relations", _read_relations),
@@ -297,6 +338,10 @@ def excerpt(name: str, workdir: Path) -> bytes:
         return _ros2_bag(workdir, "sqlite3")
     if name == "map file":
         return _saved_map(workdir)
+    if name == "milestones":
+        return _saved_milestones(workdir)
+    if name == "grid (pgm)":
+        return _saved_grid(workdir)
     return {"configuration": CONFIG, "scenario": SCENARIO, "relations": RELATIONS,
             "tum": TUM}[name]
 
@@ -380,8 +425,8 @@ def _npz_mutation(data: bytes, rng: np.random.Generator) -> bytes:
         arrays[key] = a
     else:  # a shape changed
         arrays[key] = a.reshape(-1)[: max(0, a.size - int(rng.integers(1, 4)))]
-    if key != "header":
-        header = json.loads(arrays["header"].tobytes().decode())
+    header = json.loads(arrays["header"].tobytes().decode()) if key != "header" else {}
+    if "checksum" in header:
         header["checksum"] = checksum({k: v for k, v in arrays.items() if k != "header"})
         arrays["header"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
     out = io.BytesIO()
@@ -391,8 +436,9 @@ def _npz_mutation(data: bytes, rng: np.random.Generator) -> bytes:
 
 def mutate(parser: Parser, original: bytes, rng: np.random.Generator) -> bytes:
     """One mutation of ``original`` as the parser's file holds it."""
-    textual = parser.name not in ("ros1 bag", "mcap", "ros2 sqlite3", "map file")
-    if parser.name == "map file" and rng.integers(2):
+    textual = parser.name not in ("ros1 bag", "mcap", "ros2 sqlite3", "map file",
+                                  "milestones", "grid (pgm)")
+    if parser.name in ("map file", "milestones") and rng.integers(2):
         return _npz_mutation(original, rng)
     inner = original
     if textual and (parser.pack == "none" or rng.integers(2)):

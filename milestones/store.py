@@ -12,6 +12,7 @@ import json
 import os
 import tempfile
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -83,7 +84,8 @@ def load_milestones(path: str | os.PathLike[str]) -> MilestoneManager:
         raise StoreError(f"{path}: no such file") from None
     except StoreError:
         raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error,
+            NotImplementedError) as exc:
         raise StoreError(f"{path}: not a readable milestone file ({exc})") from exc
     if "header" not in contents:
         raise StoreError(f"{path}: not a milestone file (no header)")
@@ -111,9 +113,17 @@ def load_milestones(path: str | os.PathLike[str]) -> MilestoneManager:
                                                 "features", "scan_lengths")) \
             or lengths.sum() != len(contents["scans"]) or (lengths < 0).any():
         raise StoreError(f"{path}: corrupt: array sizes disagree with the header's count {n}")
-    state = dict(contents, config=header["config"], geometry=header["geometry"],
-                 next_id=header["next_id"])
+    for name in ("poses", "stamps", "signatures", "features"):
+        if not np.isfinite(contents[name]).all():
+            raise StoreError(f"{path}: corrupt: array {name!r} holds a value that is not finite")
+    ids = contents["ids"]
+    if contents["poses"].shape[1:] != (3,) or (len(ids) and (ids[0] < 0 or np.any(
+            np.diff(ids) <= 0))):
+        raise StoreError(f"{path}: corrupt: poses are not (x, y, theta) rows or ids are not "
+                         "increasing")
     try:
+        state = dict(contents, config=header["config"], geometry=header["geometry"],
+                     next_id=header["next_id"])
         return MilestoneManager.from_state(state)
     except (TypeError, ValueError, KeyError) as exc:
         raise StoreError(f"{path}: corrupt: {exc}") from exc

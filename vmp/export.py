@@ -175,29 +175,50 @@ def read_ros_map(yaml_path: str | Path) -> Grid:
     """Read a map_server map (YAML + P5 PGM) back into a :class:`Grid`."""
     yaml_path = Path(yaml_path)
     try:
-        meta = yaml.safe_load(yaml_path.read_text())
-        data = (yaml_path.parent / meta["image"]).read_bytes()
-    except (OSError, KeyError, TypeError, yaml.YAMLError) as exc:
+        meta = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
+        image = yaml_path.parent / str(meta["image"])
+        data = image.read_bytes()
+        resolution = float(meta["resolution"])
+        origin = (float(meta["origin"][0]), float(meta["origin"][1]))
+    except (OSError, KeyError, TypeError, ValueError, IndexError, UnicodeDecodeError,
+            yaml.YAMLError) as exc:
         raise InputError(f"{yaml_path}: not a readable map_server map: {exc}") from exc
+    if not (math.isfinite(resolution) and resolution > 0 and all(map(math.isfinite, origin))):
+        raise InputError(f"{yaml_path}: resolution must be a positive number and origin "
+                         f"finite, got {resolution}, {origin}")
+    fields = _pgm_header(data)
+    if fields is None or fields[0] != b"P5" or not all(f.isdigit() for f in fields[1:]) \
+            or int(fields[3]) != 255:
+        raise InputError(f"{image}: not an 8-bit P5 PGM")
+    W, H, pos = int(fields[1]), int(fields[2]), int(fields[4])
+    body = data[pos + 1:pos + 1 + W * H]
+    if len(body) != W * H:
+        raise InputError(f"{image}: {len(body)} bytes of pixels, its header says {W} x {H}")
+    pixels = np.frombuffer(body, dtype=np.uint8).reshape(H, W)
+    return Grid(pixels[::-1].copy(), resolution, origin)
+
+
+def _pgm_header(data: bytes) -> list[bytes] | None:
+    """The magic, width, height and maximum of a PGM header, then the offset after them
+    (as digits), or None when the header is cut off."""
     fields: list[bytes] = []
     pos = 0
     while len(fields) < 4:
         while data[pos:pos + 1].isspace():
             pos += 1
         if data[pos:pos + 1] == b"#":
-            pos = data.index(b"\n", pos) + 1
+            pos = data.find(b"\n", pos) + 1
+            if pos == 0:
+                return None
             continue
         end = pos
-        while not data[end:end + 1].isspace():
+        while end < len(data) and not data[end:end + 1].isspace():
             end += 1
+        if end == pos:
+            return None
         fields.append(data[pos:end])
         pos = end
-    if fields[0] != b"P5" or int(fields[3]) != 255:
-        raise InputError(f"{yaml_path}: {meta['image']} is not an 8-bit P5 PGM")
-    W, H = int(fields[1]), int(fields[2])
-    pixels = np.frombuffer(data[pos + 1:pos + 1 + W * H], dtype=np.uint8).reshape(H, W)
-    return Grid(pixels[::-1].copy(), float(meta["resolution"]),
-                (float(meta["origin"][0]), float(meta["origin"][1])))
+    return [*fields, str(pos).encode()]
 
 
 def write_png(path: str | Path, grid: Grid) -> None:
