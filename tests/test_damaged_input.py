@@ -263,3 +263,22 @@ def test_strict_stops_at_a_bad_line_but_keeps_stamps_that_run_backwards(tmp_path
     bad.write_bytes(b"\n".join(text))
     with pytest.raises(InputError, match=rf"bad\.clf:{lasers[6] + 1}: "):
         list(open_recording(bad, strict=True))
+
+
+def test_sigterm_ends_any_command_with_one_line_and_143(monkeypatch, capsys):
+    import os
+    import signal
+    import time
+
+    import vmp.cli.info
+
+    def terminated(_log):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises before this ends
+        raise AssertionError("SIGTERM did not end the command")
+
+    monkeypatch.setattr(vmp.cli.info, "survey", terminated)
+    before = signal.getsignal(signal.SIGTERM)
+    assert run_cli(["info", str(EXCERPTS / "intel-excerpt.clf.gz")]) == 143
+    assert "terminated (SIGTERM)" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGTERM) == before  # put back

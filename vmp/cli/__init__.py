@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from vmp.cli.parser import build_parser
@@ -18,6 +20,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
+    previous = _terminate_as_interrupt()
     try:
         return int(args.run(args))
     except InputError as exc:
@@ -30,3 +33,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"vmp {args.command}: interrupted", file=sys.stderr)
         return 130
+    except _Terminated:
+        print(f"vmp {args.command}: terminated (SIGTERM); nothing half-written is left",
+              file=sys.stderr)
+        return 128 + signal.SIGTERM.value
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class _Terminated(BaseException):
+    """SIGTERM in a command that has no way of its own to end early."""
+
+
+def _terminate_as_interrupt():
+    """Make SIGTERM end any command the way Ctrl-C does (files are written atomically, so
+    nothing half-written is left); commands that finish their work on a signal (map, live,
+    localize, simulate) install their own handler over this one. Returns the handler before."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(_signum: int, _frame: object) -> None:
+        raise _Terminated
+
+    return signal.signal(signal.SIGTERM, handler)
