@@ -108,3 +108,23 @@ def test_sigkill_then_resume_gives_the_uninterrupted_runs_trajectory(tmp_path, c
     assert "leave out --method" in capsys.readouterr().err
     assert run_cli(["map", "office", "--resume", str(folder)]) == 2
     assert "no checkpoint.npz here" in capsys.readouterr().err
+
+
+def test_a_second_session_resumed_from_its_checkpoint_ends_as_the_uninterrupted_one(tmp_path):
+    from vmp.config import config_to_dict
+    from vmp.mapfile import load_map, save_map
+
+    first = MappingRun(open_source("lab", scans=700)).run()
+    p = first.pipeline
+    save_map(tmp_path / "a.vmpmap", p.map, p.milestones, p.back.graph,
+             config_to_dict(first.config), first.trajectory)
+    whole = MappingRun(open_source("lab", seed=4, scans=400),
+                       saved=load_map(tmp_path / "a.vmpmap")).run()
+    check = tmp_path / CHECKPOINT
+    MappingRun(open_source("lab", seed=4, scans=260), saved=load_map(tmp_path / "a.vmpmap"),
+               checkpoint=check, every=Every(scans=100)).run()
+    resumed = MappingRun(open_source("lab", seed=4, scans=400), resume=check).run()
+    np.testing.assert_array_equal(resumed.trajectory, whole.trajectory)
+    np.testing.assert_array_equal(resumed.stamps, whole.stamps)
+    assert resumed.pipeline.stats["scans before localized in the saved map"] == \
+        whole.pipeline.stats["scans before localized in the saved map"]
