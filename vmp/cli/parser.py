@@ -16,6 +16,7 @@ examples:
   vmp localize --map results/latest office --seed 3   where is the robot in that map?
   vmp map run2.clf --continue results/run1-20261201-101500   map on in a saved map
   vmp merge results/run1-... results/run2-... --out results   two maps joined into one
+  vmp batch office:1..8 run.clf --set milestones.method=cca,dct   many runs, one table
   vmp export results/latest --grid map.yaml --resolution 0.05
   vmp evaluate results/latest --ground-truth results/latest/ground_truth.tum
   vmp simulate office                     write office.clf (CARMEN log) and office.tum (truth)
@@ -39,6 +40,7 @@ class Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     from vmp.cli import (
+        batch,
         evaluate,
         export,
         info,
@@ -58,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"vmp-slam {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    for command in (simulate, mapping, localize, merge, export, evaluate, info, live,
+    for command in (simulate, mapping, localize, merge, batch, export, evaluate, info, live,
                     scenarios):
         command.add_parser(sub)
     return parser
