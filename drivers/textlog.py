@@ -85,6 +85,8 @@ def open_text(path: Path) -> IO[str]:
         except zipfile.BadZipFile:
             return io.TextIOWrapper(io.BufferedReader(_FirstMember(path)), encoding="ascii",
                                     errors="replace")
+        except (NotImplementedError, ValueError, EOFError, zlib.error) as exc:
+            raise InputError(f"{path}: a damaged zip archive ({exc})") from exc
         try:
             members = [m for m in archive.infolist()
                        if not m.is_dir() and not m.filename.startswith("__MACOSX")]
@@ -92,6 +94,8 @@ def open_text(path: Path) -> IO[str]:
                 raise InputError(f"{path}: an empty zip archive")
             member = max(members, key=lambda m: m.file_size)
             return io.TextIOWrapper(archive.open(member), encoding="ascii", errors="replace")
+        except RuntimeError as exc:  # zipfile's word for an encrypted member
+            raise InputError(f"{path}: an encrypted zip archive (unpack it first)") from exc
         except (zipfile.BadZipFile, zlib.error, EOFError, ValueError,
                 NotImplementedError) as exc:
             raise InputError(f"{path}: a damaged zip archive ({exc})") from exc
