@@ -7,30 +7,20 @@ Per scenario it prints the ATE (RMSE after SE(2) alignment, against the simulato
 each seed, starting with the scenario's own, then the median and the maximum, and the number
 of wrong corrections (ones that moved the estimate more than 10 cm away from the truth; issue 4
 allows none on the corridor). One seed's result can flatter a change; this shows the spread.
+The runs are `vmp batch`'s tasks (:func:`vmp.cli.batch.run_batch`: a local Dask cluster of
+--jobs worker processes, or one after another with --jobs 1).
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
-from concurrent.futures import ProcessPoolExecutor
+import tempfile
 from pathlib import Path
 
-from drivers import open_source
 from drivers.scenario import load_scenario
-from vmp.config import MappingConfig, load_config
-from vmp.evaluate import ate, wrong_corrections
-from vmp.run import MappingRun
-
-
-def run(job: tuple[str, int, Path | None]) -> tuple[str, int, float, int]:
-    """One scenario and seed: (scenario, seed, ATE in metres, wrong corrections)."""
-    name, seed, config_path = job
-    config = load_config(config_path) if config_path else MappingConfig()
-    r = MappingRun(open_source(name, seed=seed), config).run()
-    truth = r.reference
-    e = ate(r.stamps, r.trajectory, truth.stamps, truth.poses).rmse
-    return name, seed, e, len(wrong_corrections(r.corrections, truth.poses))
+from vmp.cli.batch import Job, run_batch
+from vmp.config import load_config
 
 
 def seeds_of(name: str, count: int) -> list[int]:
@@ -45,15 +35,21 @@ def main() -> None:
     ap.add_argument("scenarios", nargs="+")
     ap.add_argument("--seeds", type=int, nargs="+", help="these seeds for every scenario")
     ap.add_argument("--count", type=int, default=8, help="seeds per scenario (default 8)")
-    ap.add_argument("--jobs", type=int, default=2, help="runs at once (default 2)")
+    ap.add_argument("--jobs", type=int, default=2, help="runs at once (default 2; 1: serial)")
     ap.add_argument("--config", type=Path, help="mapping configuration YAML")
     args = ap.parse_args()
     if args.config:
         load_config(args.config)  # a bad file fails here, once, with its message
-    jobs = [(name, seed, args.config) for name in args.scenarios
-            for seed in (args.seeds or seeds_of(name, args.count))]
-    with ProcessPoolExecutor(args.jobs) as pool:
-        results = list(pool.map(run, jobs))
+    with tempfile.TemporaryDirectory(prefix="vmp-seeds-") as out:
+        jobs = [Job(name, seed, out=out, config=str(args.config) if args.config else None)
+                for name in args.scenarios
+                for seed in (args.seeds or seeds_of(name, args.count))]
+        rows, _ = run_batch(jobs, workers=args.jobs, serial=args.jobs == 1)
+    failed = [r for r in rows if r is None or r["status"] != "ok"]
+    if failed:
+        raise SystemExit(f"runs failed: {[r and (r['source'], r['status']) for r in failed]}")
+    results = [(j.source, j.seed, r["ATE (m)"], r["wrong corrections"])
+               for j, r in zip(jobs, rows, strict=True)]
     for name in args.scenarios:
         mine = [r for r in results if r[0] == name]
         errors = [e for _, _, e, _ in mine]

@@ -48,6 +48,7 @@ class Job:
     out: str = "results"  # the folder that receives this run's results folder
     timeout: float | None = None  # seconds, then the run ends and is reported so
     scans: int | None = None  # map only the first this many scans
+    config: str | None = None  # a configuration file the settings apply over (else defaults)
 
     @property
     def label(self) -> str:
@@ -104,25 +105,34 @@ def _sweep(sets: Sequence[str]) -> list[tuple[tuple[str, Any], ...]]:
     return [tuple(combo) for combo in itertools.product(*axes)]
 
 
-def config_for(settings: tuple[tuple[str, Any], ...]):
-    """The default configuration with ``settings`` applied (checked as a file's would be)."""
-    from vmp.config import config_from_dict
+def config_for(settings: tuple[tuple[str, Any], ...], base: str | None = None):
+    """The configuration of file ``base`` (default: the built-in one) with ``settings``
+    applied over it (checked as a file's would be)."""
+    from vmp.config import MappingConfig, config_from_dict, config_to_dict, load_config
 
-    doc: dict[str, dict[str, Any]] = {}
+    doc = config_to_dict(load_config(base) if base else MappingConfig())
     for key, value in settings:
         section, name = key.split(".")
-        doc.setdefault(section, {})[name] = value
+        if not isinstance(doc.get(section), dict):
+            raise InputError(f"--set {key}: {section}: unknown section; expected one of "
+                             f"{', '.join(sorted(doc))}")
+        if name not in doc[section]:
+            raise InputError(f"--set {key}: unknown key; expected one of "
+                             f"{', '.join(sorted(doc[section]))}")
+        doc[section][name] = value
     return config_from_dict(doc, "--set")
 
 
 def plan(sources: Sequence[str], sets: Sequence[str] = (), out: str | Path = "results",
-         timeout: float | None = None, scans: int | None = None) -> list[Job]:
+         timeout: float | None = None, scans: int | None = None,
+         config: str | Path | None = None) -> list[Job]:
     """The jobs for every source, seed and combination of settings (settings checked now,
     so that a typo fails before any work)."""
     combos = _sweep(sets)
+    base = None if config is None else str(config)
     for combo in combos:
-        config_for(combo)
-    return [Job(src, seed, combo, str(out), timeout, scans)
+        config_for(combo, base)
+    return [Job(src, seed, combo, str(out), timeout, scans, base)
             for src, seed in _sources(sources) for combo in combos]
 
 
@@ -159,7 +169,8 @@ def run_job(job: Job) -> dict[str, Any]:
     row = _row(job)
     try:
         source = open_source(job.source, seed=job.seed, scans=job.scans)
-        run = MappingRun(source, config_for(job.settings), label=job.label, scans=job.scans)
+        run = MappingRun(source, config_for(job.settings, job.config), label=job.label,
+                         scans=job.scans)
         timer = None
         if job.timeout is not None:
             timer = threading.Timer(job.timeout, run.stop, args=("timeout",))
@@ -329,6 +340,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     bp.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=V1,V2",
                     help="run every value (repeatable: every combination) on every source; "
                     "the settings become columns of the table")
+    bp.add_argument("--config", type=Path, help="mapping configuration YAML for every run "
+                    "(--set applies over it; default: built-in)")
     bp.add_argument("--workers", type=positive_int,
                     help="worker processes of the local cluster (default: one per core)")
     bp.add_argument("--scheduler", metavar="tcp://HOST:PORT",
@@ -348,7 +361,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.serial and (args.scheduler or args.workers):
         raise InputError("--serial runs here: leave out --scheduler and --workers")
-    jobs = plan(args.sources, args.set, args.out, args.timeout, args.scans)
+    jobs = plan(args.sources, args.set, args.out, args.timeout, args.scans, args.config)
     if not args.serial:
         try:
             import distributed  # noqa: F401 - only to say how to install it
