@@ -56,11 +56,17 @@ class BreezySlamLog(LineLog):
                 continue
             now = values[2:4]
             if ticks is not None:
-                turn = 2.0 * math.pi * (now - ticks) / TICKS_PER_TURN
-                d_left, d_right = WHEEL_RADIUS * turn
-                ds = 0.5 * (d_left + d_right)
-                dth = (d_right - d_left) / (2.0 * HALF_AXLE)
-                pose = compose(pose, [ds * math.cos(dth / 2), ds * math.sin(dth / 2), dth])
+                with np.errstate(over="ignore", invalid="ignore"):
+                    turn = 2.0 * math.pi * (now - ticks) / TICKS_PER_TURN
+                    d_left, d_right = WHEEL_RADIUS * turn
+                    ds = 0.5 * (d_left + d_right)
+                    dth = (d_right - d_left) / (2.0 * HALF_AXLE)
+                step = (np.array([ds * math.cos(dth / 2), ds * math.sin(dth / 2), dth])
+                        if math.isfinite(ds) and math.isfinite(dth) else np.full(3, np.nan))
+                if not np.isfinite(step).all():  # the next line counts from the last good one
+                    self._bad(no, "bad scan line: the wheel ticks jump beyond any motion")
+                    continue
+                pose = compose(pose, step)
             ticks = now
             r = mm / 1000.0
             ranges = np.where((r <= 0) | (r >= MAX_RANGE), np.inf, r)
