@@ -158,7 +158,10 @@ class _Ros1Bag:
 
         name = _typename(msgtype)
         if definition and name not in self.store.fielddefs:
-            self.store.register(get_types_from_msg(definition, name))
+            try:
+                self.store.register(get_types_from_msg(definition, name))
+            except Exception:  # a damaged definition: its messages fail to decode, reported
+                pass
 
     def messages(self, topics: set[str]) -> Iterator[tuple[int, str, int, object]]:
         """``(index, topic, time_ns, message or exception)`` of the chosen topics."""
