@@ -12,7 +12,8 @@ through to its last frame, a map through its checks, a configuration into a mapp
 settings, a scenario into its first scans). Each case ends one of four ways: read (the
 mutation left something valid), refused (:class:`InputError` or an OS error, which the
 command line prints as one line and exit 2), a traceback (any other exception: a bug), or a
-hang (longer than ``--timeout``). An error message with a line break counts as a traceback.
+hang (longer than ``--timeout``). An error message with a line break, and a RuntimeWarning
+(which a user would see printed), count as tracebacks.
 
 It prints per parser the counts and the first few tracebacks by place, and writes the table to
 docs/benchmarks.md (section ``fuzz``). The exit code is 1 when any parser had a traceback or a
@@ -32,6 +33,7 @@ import sys
 import tempfile
 import time
 import traceback
+import warnings
 import zipfile
 from collections import Counter
 from collections.abc import Callable
@@ -472,6 +474,9 @@ def run_cases(job: tuple[str, int, int, float]) -> Tally:
     parser = next(p for p in parsers() if p.name == name)
     tally = Tally()
     signal.signal(signal.SIGALRM, _alarm)
+    # A warning a user would see (overflow in a conversion, say) is a message that is not one
+    # line: it counts as a traceback.
+    warnings.simplefilter("error", RuntimeWarning)
     with tempfile.TemporaryDirectory(prefix="vmp-fuzz-") as tmp:
         workdir = Path(tmp)
         original = excerpt(name, workdir)
@@ -504,6 +509,24 @@ def run_cases(job: tuple[str, int, int, float]) -> Tally:
             finally:
                 signal.setitimer(signal.ITIMER_REAL, 0)
     return tally
+
+
+def _write(rows: list[tuple[str, Tally, float]], names: list[str], cases: int) -> None:
+    """Put the rows into docs/benchmarks.md's fuzz section, keeping other parsers' rows."""
+    body = ["`python bench/fuzz.py" + (f" --cases {cases}" if cases != 100_000 else "")
+            + f"` on {machine()} (rows of parsers run separately: `--only NAME`): every "
+            "parser's real excerpt mutated (truncation, byte flips, insertions, deletions, "
+            "repeats, zeroed blocks, line edits, extreme numbers, non-UTF-8), read as the "
+            "command line reads it, RuntimeWarnings counted as tracebacks. Refused: one-line "
+            "error, exit 2.", "",
+            "| parser | cases | read | refused (one line) | tracebacks | hangs | time |",
+            "|---|---|---|---|---|---|---|"]
+    table = _rows_written_before(names)
+    for name, t, took in rows:
+        table[name] = (f"| {name} | {t.cases} | {t.read} | {t.refused} | {t.tracebacks} | "
+                       f"{t.hangs} | {took:.0f} s |")
+    body += [table[n] for n in names if n in table]
+    write_section("fuzz", "## Fuzzing the parsers\n\n" + "\n".join(body) + "\n")
 
 
 def _rows_written_before(names: list[str]) -> dict[str, str]:
@@ -553,20 +576,8 @@ def main() -> int:
                   f"hangs ({took:.0f} s)", flush=True)
             for place, n in tally.places.most_common(8):
                 print(f"    {n:>6} x {place} (first: case {tally.example[place]})", flush=True)
-    if not args.no_write:
-        body = ["`python bench/fuzz.py" + (f" --cases {args.cases}" if args.cases != 100_000
-                                           else "") + f"` on {machine()}: every parser's real "
-                "excerpt mutated (truncation, byte flips, insertions, deletions, repeats, "
-                "zeroed blocks, line edits, extreme numbers, non-UTF-8), read as the command "
-                "line reads it. Refused: one-line error, exit 2.", "",
-                "| parser | cases | read | refused (one line) | tracebacks | hangs | time |",
-                "|---|---|---|---|---|---|---|"]
-        table = _rows_written_before(names)
-        for name, t, took in rows:
-            table[name] = (f"| {name} | {t.cases} | {t.read} | {t.refused} | {t.tracebacks} | "
-                           f"{t.hangs} | {took:.0f} s |")
-        body += [table[n] for n in names if n in table]
-        write_section("fuzz", "## Fuzzing the parsers\n\n" + "\n".join(body) + "\n")
+            if not args.no_write:  # after each parser: a long run cut short keeps its rows
+                _write(rows, names, args.cases)
     return 1 if any(t.tracebacks or t.hangs for _, t, _ in rows) else 0
 
 
