@@ -1,6 +1,6 @@
 """Serial-link integrity of the three simulated laser scanners under byte corruption.
 
-Run: python bench/serial_integrity.py [--scans 1000] [--quick]
+Run: python bench/serial_integrity.py [--scans 1400] [--quick]
 
 For each scanner (SICK LMS 2xx, RPLIDAR A1, Hokuyo URG-04LX) and each corruption rate, the
 driver runs against its simulated device on a pty (scenario "office", device clock sped up)
@@ -9,6 +9,11 @@ tests do. A cell reports the scans sent, those that left the device intact, the 
 delivered exactly, the frames that match no sent scan (accepted with wrong values, and how
 many beams differ from the nearest sent scan), the driver's error counters and the wall time.
 A cell is split into sessions of at most --session scans, session i with corruption seed i.
+In every session the device is power-cycled once (--off seconds of device time without power,
+then a reboot) when --cycle-at of its scans have been sent; --off 0 leaves the power on.
+The devices run as the real ones do: the LMS on a line paced at its baud rate, which comes
+back at 9600 baud after its boot; the RPLIDAR streaming its nodes continuously with parallax-
+corrected angles and a varying node count; the URG-04LX coming back in SCIP 1.1.
 --quick runs a few hundred scans per cell and only prints (add --write to keep its figures).
 """
 
@@ -27,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from report import machine, write_section
 
-from drivers.devices.pty_device import PtyDevice, SentScan
+from drivers.devices.pty_device import Corruption, PtyDevice, SentScan
 from drivers.scanners import open_scanner, simulated_scanner
 from drivers.scenario import load_scenario
 from vmp.types import ScanFrame
@@ -36,10 +41,14 @@ SCANNERS = ("sick", "rplidar", "hokuyo")
 TITLES = {"sick": "SICK LMS 2xx", "rplidar": "RPLIDAR A1", "hokuyo": "Hokuyo URG-04LX"}
 CHECKS = {"sick": "CRC-16 per telegram", "rplidar": "check bit, inverted start flag, turn checks",
           "hokuyo": "6-bit sum per line, character range, line length"}
-# the driver options the tests use
-DRIVER_OPTIONS = {"sick": {"baudrate": 38400, "units": "mm", "silence": 0.5},
-                  "rplidar": {"silence": 0.5}, "hokuyo": {"silence": 1.0}}
+# the driver options: a silence of 0.2 s of wall time is 2 s of the sped-up device clock
+DRIVER_OPTIONS = {"sick": {"baudrate": 38400, "units": "mm", "silence": 0.2},
+                  "rplidar": {"silence": 0.2}, "hokuyo": {"silence": 0.2}}
 RATES = (0.0, 1e-4, 1e-3, 3e-3)
+# a hit byte: one bit flipped, dropped, an 8-byte burst of noise, or a byte added before it
+MIX = {"flip": 0.5, "drop": 0.15, "burst": 0.2, "insert": 0.15}
+# the devices as the real ones behave (see the module notes)
+DEVICE_OPTIONS = {"sick": {"paced": True}, "rplidar": {}, "hokuyo": {"scip1_on_boot": True}}
 
 
 # -- matching frames to sent scans, in the units each driver test compares -------------------
@@ -69,7 +78,7 @@ class Cell:
     rate: float
     sessions: int = 0
     sent: int = 0
-    intact: int = 0  # left the device intact (RPLIDAR: without each session's last turn)
+    intact: int = 0  # left the device intact
     intact_exact: int = 0  # of those, delivered exactly
     frames: int = 0
     corrupted_exact: int = 0  # corrupted in transit, yet delivered with the sent values
@@ -81,7 +90,9 @@ class Cell:
     framing: int = 0
     rejected: int = 0
     timeouts: int = 0
+    stalls: int = 0
     reconnects: int = 0
+    power_cycles: int = 0
     bytes_dropped: int = 0  # the driver did not keep up
     wall: float = 0.0
     reasons: dict[str, int] = field(default_factory=dict)
@@ -96,8 +107,7 @@ def tally(cell: Cell, dev: PtyDevice, frames: list[ScanFrame]) -> None:
     name = cell.name
     sent = dev.sent
     by_value = {sent_key(name, s).tobytes(): s for s in sent}
-    # the last RPLIDAR turn completes only when a next one starts, which never comes
-    counted = sent[:-1] if name == "rplidar" else sent
+    counted = sent
     intact = {s.seq for s in counted if s.intact}
     corrupted = {s.seq for s in sent if not s.intact}
     exact: set[int] = set()
@@ -130,10 +140,13 @@ def tally(cell: Cell, dev: PtyDevice, frames: list[ScanFrame]) -> None:
     cell.wrong += len(wrong)
 
 
-def session(cell: Cell, scans: int, speed: float, seed: int, scenario) -> None:
-    """One driver session against a fresh simulated device until its run is sent."""
-    dev = simulated_scanner(cell.name, scenario, speed=speed, corruption=cell.rate, seed=seed,
-                            max_scans=scans)
+def session(cell: Cell, scans: int, speed: float, seed: int, scenario, off: float = 3.0,
+            cycle_at: float = 0.5) -> None:
+    """One driver session against a fresh simulated device until its run is sent, with the
+    device's power off for ``off`` device seconds once ``cycle_at`` of the run is sent."""
+    dev = simulated_scanner(cell.name, scenario, speed=speed,
+                            corruption=Corruption(rate=cell.rate, **MIX), seed=seed,
+                            max_scans=scans, **DEVICE_OPTIONS[cell.name])
     frames: list[ScanFrame] = []
     crash: list[BaseException] = []
     t0 = time.perf_counter()
@@ -149,8 +162,17 @@ def session(cell: Cell, scans: int, speed: float, seed: int, scenario) -> None:
         reader = threading.Thread(target=collect, name=f"{cell.name}-bench", daemon=True)
         reader.start()
         assert dev.source is not None
-        limit = len(dev.source) * dev.source.period / speed * 2 + 20.0
-        dev.finished.wait(limit)
+        limit = len(dev.source) * dev.source.period / speed * 2 + 20.0 + off / speed
+        deadline = time.monotonic() + limit
+        if off > 0:
+            while (len(dev.sent) < cycle_at * len(dev.source) and not dev.finished.is_set()
+                   and time.monotonic() < deadline and reader.is_alive()):
+                time.sleep(0.01)
+            dev.go_silent()
+            time.sleep(off / speed)
+            dev.power_on()
+            cell.power_cycles += 1
+        dev.finished.wait(max(0.0, deadline - time.monotonic()))
         time.sleep(0.3)  # the last scans in flight
         drv.close()
         reader.join(timeout=5.0)
@@ -166,6 +188,7 @@ def session(cell: Cell, scans: int, speed: float, seed: int, scenario) -> None:
     cell.framing += st.framing_errors
     cell.rejected += st.rejected
     cell.timeouts += st.timeouts
+    cell.stalls += st.stalls
     cell.reconnects += st.reconnects
     cell.bytes_dropped += dev.bytes_dropped
     for k, v in getattr(drv, "reject_reasons", {}).items():
@@ -174,12 +197,12 @@ def session(cell: Cell, scans: int, speed: float, seed: int, scenario) -> None:
 
 
 def run_cell(name: str, rate: float, scans: int, per_session: int, speed: float,
-             scenario) -> Cell:
+             scenario, off: float = 3.0, cycle_at: float = 0.5) -> Cell:
     cell = Cell(name, rate)
     left, seed = scans, 1
     while left > 0:
         n = min(left, per_session)
-        session(cell, n, speed, seed, scenario)
+        session(cell, n, speed, seed, scenario, off, cycle_at)
         left -= n
         seed += 1
     return cell
@@ -200,7 +223,8 @@ def beams_text(c: Cell) -> str:
 def table(cells: list[Cell]) -> list[str]:
     lines = ["| scanner | rate | sent | left intact | intact delivered exactly "
              "| corrupted, delivered exactly | wrong scans delivered | wrong beams (per scan) "
-             "| checksum / framing / rejected | silences / reconnects | wall s |",
+             "| checksum / framing / rejected | power cycles / silences / stalls / reconnects "
+             "| wall s |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for c in cells:
         lines.append(
@@ -208,7 +232,8 @@ def table(cells: list[Cell]) -> list[str]:
             f"| {c.intact_exact} ({'-' if not c.intact else f'{c.share:.1%}'}) "
             f"| {c.corrupted_exact} | {c.wrong} "
             f"| {beams_text(c)} | {c.checksum} / {c.framing} / {c.rejected} "
-            f"| {c.timeouts} / {c.reconnects} | {c.wall:.1f} |")
+            f"| {c.power_cycles} / {c.timeouts} / {c.stalls} / {c.reconnects} "
+            f"| {c.wall:.1f} |")
     return lines
 
 
@@ -246,34 +271,43 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scans", type=int, default=None,
-                    help="scans per cell (default 1000; 200 with --quick)")
+                    help="scans per cell, the power cuts included (default 1400; 200 with "
+                         "--quick)")
     ap.add_argument("--quick", action="store_true",
                     help="smoke check: 200 scans per cell, printed, docs left alone")
     ap.add_argument("--write", action="store_true",
                     help="with --quick: write the figures to docs/benchmarks.md all the same")
-    ap.add_argument("--session", type=int, default=500,
-                    help="scans per session at most (default 500)")
+    ap.add_argument("--session", type=int, default=700,
+                    help="scans per session at most (default 700)")
     ap.add_argument("--speed", type=float, default=10.0,
                     help="device clock speed-up (default 10)")
     ap.add_argument("--rates", type=float, nargs="+", default=list(RATES),
                     help="byte corruption rates (default 0 1e-4 1e-3 3e-3)")
     ap.add_argument("--scanners", nargs="+", choices=SCANNERS, default=list(SCANNERS))
+    ap.add_argument("--off", type=float, default=3.0,
+                    help="device seconds without power in each session (default 3; 0: none)")
+    ap.add_argument("--cycle-at", type=float, default=0.5,
+                    help="share of a session's scans sent before its power cycle (default 0.5)")
     args = ap.parse_args()
-    scans = args.scans if args.scans is not None else (200 if args.quick else 1000)
+    scans = args.scans if args.scans is not None else (200 if args.quick else 1400)
     if scans < 1 or args.session < 1:
         ap.error("--scans and --session must be positive")
+    if args.off < 0 or not 0 <= args.cycle_at <= 1:
+        ap.error("--off must be >= 0 and --cycle-at within 0..1")
     scenario = load_scenario("office")
     cells = []
     t0 = time.perf_counter()
     for name in args.scanners:
         for rate in args.rates:
-            c = run_cell(name, rate, scans, args.session, args.speed, scenario)
+            c = run_cell(name, rate, scans, args.session, args.speed, scenario, args.off,
+                         args.cycle_at)
             cells.append(c)
             print(f"{name:8s} rate {fmt_rate(c.rate):5s}: {c.intact_exact}/{c.intact} intact "
                   f"delivered exactly, {c.wrong} wrong of {c.frames} frames "
                   f"(beams {c.wrong_beams}), {c.corrupted_exact} corrupted exact; "
                   f"errors {c.checksum}/{c.framing}/{c.rejected}, "
-                  f"{c.timeouts} silences, {c.reconnects} reconnects, "
+                  f"{c.power_cycles} power cycles, {c.timeouts} silences, {c.stalls} stalls, "
+                  f"{c.reconnects} reconnects, "
                   f"{c.bytes_dropped} bytes dropped, {c.wall:.1f} s"
                   + (f"; rejected turns {c.reasons}" if c.reasons else "")
                   + (f"; {c.wrong_near_intact} wrong frames nearest an intact scan"
@@ -297,12 +331,16 @@ def main() -> None:
                                                  else f" --scans {scans}")
     if args.speed != 10.0:
         cmd += f" --speed {args.speed:g}"
-    if args.session != 500:
+    if args.session != 700:
         cmd += f" --session {args.session}"
     if list(args.rates) != list(RATES):
         cmd += " --rates " + " ".join(fmt_rate(r) for r in args.rates)
     if list(args.scanners) != list(SCANNERS):
         cmd += " --scanners " + " ".join(args.scanners)
+    if args.off != 3.0:
+        cmd += f" --off {args.off:g}"
+    if args.cycle_at != 0.5:
+        cmd += f" --cycle-at {args.cycle_at:g}"
     sessions = -(-scans // args.session)
     lines = [
         "## Serial-link integrity of the scanner drivers",
@@ -311,13 +349,24 @@ def main() -> None:
         f"Each driver against its simulated device on a pty, scenario office, device clock "
         f"x{args.speed:g}, {scans} scans per cell in {sessions} session(s) (corruption seeds "
         f"1..{sessions}). Each byte the device sends is hit with the given probability "
-        "(60 % one bit flipped, 20 % dropped, 20 % an 8-byte random burst). Delivered frames "
+        "(50 % one bit flipped, 15 % dropped, 15 % a random byte added before it, 20 % an "
+        "8-byte random burst, which runs on into the next telegram). "
+        + (f"In every session the device's power goes off for {args.off:g} s of device time "
+           f"once {args.cycle_at:.0%} of its scans are sent; it comes back as after a reboot "
+           "(the LMS at 9600 baud in request mode, the RPLIDAR idle after its banner, the "
+           "URG-04LX in SCIP 1.1), and the driver has to find it silent and connect again. "
+           if args.off > 0 else "")
+        + "The devices behave as the real ones: the LMS line is paced at its baud rate, so the "
+        "power cut truncates a telegram; the RPLIDAR streams its nodes continuously, starts "
+        "mid-revolution, corrects its angles for parallax (near points can be reported behind "
+        "far ones) and varies its node count by 1 %. Delivered frames "
         "are matched by value to the scans the device sent, as the driver tests do. "
-        "*Left intact*: scans none of whose bytes was hit (RPLIDAR: without the last turn of "
-        "a session, which never completes). *Wrong scans delivered*: frames equal to no sent "
+        "*Left intact*: scans none of whose bytes was hit (a scan cut by the power cut or a "
+        "STOP is not intact). *Wrong scans delivered*: frames equal to no sent "
         "scan; *wrong beams*: beams that differ from the nearest sent scan, in all (smallest - "
         "largest per scan). Error counters are the driver's `stats`; they count events, not "
-        "scans.",
+        "scans. *Silences*: the device sent no byte for the driver's `silence`; *stalls*: "
+        "bytes but no scan for its `stall`.",
         "",
         *rows,
         "",

@@ -3,8 +3,13 @@
 The handshake stops any stream (``QT``), drains the input, switches to SCIP 2.0 (status ``00``,
 or ``0E`` when the sensor already speaks it), reads the parameters (``PP``) and the version
 (``VV``, optional) and starts a continuous 3-character ``MD`` stream, which switches the laser
-on by itself. Each scan reply is checked completely (:func:`drivers.scip2_protocol.check_scan`)
-before it becomes ranges: values below DMIN (URG error codes) or above DMAX are no return.
+on by itself. A sensor that answers ``QT`` with the SCIP 1.1 status ``E`` (an URG-04LX after
+a power cycle) is switched to SCIP 2.0 the same way. Each scan reply is checked completely
+(:func:`drivers.scip2_protocol.check_scan`) before it becomes ranges: values below DMIN (URG
+error codes) are no return. The 6-bit line sums miss two flips of the same bit in one line,
+and the sensor never reports more than DMAX: a scan with a value above ``implausible_above``
+times DMAX has a corruption the sums missed and is refused; values above DMAX up to that
+limit are no return.
 """
 
 from __future__ import annotations
@@ -30,8 +35,10 @@ class HokuyoScip2Driver(ScanDriver):
     """A Hokuyo URG streaming ``MD`` scans of steps ``first_step..last_step`` (default: all).
 
     ``cluster`` groups that many neighbouring steps into one value (the sensor reports the
-    nearest). ``reply_timeout`` and ``tries`` bound each handshake command. Other keyword
-    arguments go to :class:`~drivers.serial_scanner.ScanDriver`. After :meth:`connect`,
+    nearest). ``reply_timeout`` and ``tries`` bound each handshake command.
+    ``implausible_above`` (a multiple of DMAX, None: no limit) refuses scans holding a value
+    the sensor cannot report. Other keyword arguments go to
+    :class:`~drivers.serial_scanner.ScanDriver`. After :meth:`connect`,
     ``params`` holds the PP values and ``version`` the VV lines; ``device_time`` is the time
     stamp (ms) of the last scan delivered.
     """
@@ -41,8 +48,13 @@ class HokuyoScip2Driver(ScanDriver):
 
     def __init__(self, port: str, *, first_step: int | None = None,
                  last_step: int | None = None, cluster: int = 1, reply_timeout: float = 0.3,
-                 tries: int = 3, **base_kwargs: Any) -> None:
+                 tries: int = 3, implausible_above: float | None = 1.0,
+                 **base_kwargs: Any) -> None:
         super().__init__(port, **base_kwargs)
+        if implausible_above is not None and implausible_above < 1.0:
+            raise ValueError(f"implausible_above is a multiple of DMAX >= 1, "
+                             f"got {implausible_above}")
+        self.implausible_above = implausible_above
         if not 1 <= cluster <= 99:
             raise ValueError(f"cluster must lie in 1..99, got {cluster}")
         self.first_step = first_step
@@ -103,12 +115,16 @@ class HokuyoScip2Driver(ScanDriver):
                 last = time.monotonic()
 
     def _stop_and_drain(self) -> None:
-        """QT until it is acknowledged (a streaming sensor keeps sending a while), then drain."""
+        """QT until it is answered (a streaming sensor keeps sending a while), then drain.
+
+        Any complete reply counts: ``00P``, SCIP 1.1's ``E``, or a status garbled on the line.
+        """
         heard = bytearray()
         for _ in range(2):
             self.write(b"QT\n")
             rep = self._await(scip.ReplyParser((b"QT",)), self.reply_timeout,
-                              lambda r: r.echo == b"QT" and r.status == b"00P", heard)
+                              lambda r: r.echo == b"QT" and r.complete and bool(r.status),
+                              heard)
             if rep is not None:
                 break
         if not heard:
@@ -214,6 +230,11 @@ class HokuyoScip2Driver(ScanDriver):
                 st.framing_errors += 1
                 self.last_error = str(exc)
             else:
+                limit = self.implausible_above
+                if limit is not None and int(values.max(initial=0)) > limit * self.params["DMAX"]:
+                    st.rejected += 1  # a corruption the line sums missed
+                    self.last_error = "scan with a value above DMAX refused"
+                    continue
                 self.device_time = stamp
                 out.append(self._ranges(values))
         p = self._parser

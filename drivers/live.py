@@ -212,6 +212,7 @@ class LiveSource:
             "link: framing errors": s.framing_errors,
             "link: rejected": s.rejected,
             "link: silences": s.timeouts,
+            "link: stalls": s.stalls,
             "link: reconnects": s.reconnects,
             "scans waiting for odometry": self._waiting,
             "scans dropped (mapping fell behind)": self._reader.dropped,

@@ -13,7 +13,13 @@ device's 0 degree mark. A node goes to the nearest beam; when several land in on
 nearest range wins; a beam without a node, or whose nodes all read 0, is ``inf``. Choose
 ``beams`` at or below the nodes per turn of the device (A1 at 5.5 Hz: about 360), or some
 beams stay empty. A turn is complete when the next one starts, so a frame is stamped at the
-arrival of the next turn's first node.
+arrival of the next turn's first node; when the stream pauses after a turn that already
+covers the circle (a STOP, a power cut, the next start node lost), the turn is delivered
+then, stamped at the arrival of its own last node.
+
+The nodes carry no checksum: a node whose distance bits were hit passes every check and
+shows as a wrong range in an otherwise plausible turn. The driver cannot see it; the
+serial-integrity benchmark measures how often it happens.
 """
 
 from __future__ import annotations
@@ -100,13 +106,16 @@ class RplidarDriver(ScanDriver):
         self._count()
         return [self.bin_turn(t.angle_q6, t.dist_q2) for t in turns]
 
+    def flush(self) -> list[FloatArray]:
+        """The turn under way, if it already covers the circle (the stream has paused)."""
+        turns = self._assembler.flush()
+        self._count()
+        return [self.bin_turn(t.angle_q6, t.dist_q2) for t in turns]
+
     def bin_turn(self, angle_q6: np.ndarray, dist_q2: np.ndarray) -> FloatArray:
         """Ranges of one turn's nodes in the beam layout (nearest node wins within a beam)."""
-        ranges = np.full(self.beams, np.inf)
-        hit = np.asarray(dist_q2) > 0
-        idx = rp.bin_index(np.asarray(angle_q6)[hit], self.beams)
-        np.minimum.at(ranges, idx, np.asarray(dist_q2)[hit] / 4000.0)
-        return ranges
+        q2 = rp.bin_nodes(angle_q6, dist_q2, self.beams)
+        return np.where(q2 > 0, q2 / 4000.0, np.inf)
 
     def stop_stream(self) -> None:
         """STOP, then motor off."""

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
+from typing import Any
 
-from drivers.devices.pty_device import PtyDevice, ScanSource
+from drivers.devices.pty_device import Corruption, PtyDevice, ScanSource
 from drivers.live import LiveSource
 from drivers.scenario import Scenario
 from drivers.serial_scanner import ScanDriver
@@ -39,13 +40,14 @@ def open_scanner(name: str, port: str, **options) -> ScanDriver:
 
 
 def simulated_scanner(name: str, scenario: Scenario, *, speed: float = 1.0,
-                      corruption: float = 0.0, seed: int = 0,
-                      max_scans: int | None = None) -> PtyDevice:
-    """A simulated device of ``name`` streaming ``scenario`` (not started)."""
+                      corruption: float | Corruption = 0.0, seed: int = 0,
+                      max_scans: int | None = None, **device_options: Any) -> PtyDevice:
+    """A simulated device of ``name`` streaming ``scenario`` (not started); ``device_options``
+    go to the device class (``boot_time``, ``paced``, ``scip1_on_boot``, ...)."""
     _check(name)
     device_cls = _load(SCANNERS[name][1])
     source = ScanSource(scenario, device_cls.sensor_model(), max_scans=max_scans)
-    return device_cls(source, corruption=corruption, seed=seed, speed=speed)
+    return device_cls(source, corruption=corruption, seed=seed, speed=speed, **device_options)
 
 
 def open_live(name: str, where: str, record_to: Path, *, simulate: bool = False,

@@ -1,10 +1,12 @@
 """What every serial laser scanner driver shares: the port, the counters, reconnection.
 
 A driver subclasses :class:`ScanDriver` with its protocol: :meth:`ScanDriver.connect` (the
-handshake that leaves the device streaming and says its beam geometry) and
-:meth:`ScanDriver.decode` (bytes in, ranges of complete, checked scans out). The base class
-turns those into scan frames stamped on arrival, and when the device falls silent it closes
-the port and connects again with a growing back-off, counting each step in :class:`LinkStats`.
+handshake that leaves the device streaming and says its beam geometry),
+:meth:`ScanDriver.decode` (bytes in, ranges of complete, checked scans out) and, where a scan
+is only known to be complete once the next one begins, :meth:`ScanDriver.flush`. The base
+class turns those into scan frames stamped on arrival. When the device falls silent (no byte
+at all), or talks without a single scan getting through for much longer, it closes the port
+and connects again with a growing back-off, counting each step in :class:`LinkStats`.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ class LinkStats:
     rejected: int = 0  # checked frames or turns refused as implausible
     skipped_bytes: int = 0  # garbage between frames
     timeouts: int = 0  # the device fell silent
+    stalls: int = 0  # bytes kept coming, but no scan got through for ``stall`` seconds
     reconnects: int = 0  # handshakes attempted after the first
     failed_connects: int = 0
 
@@ -48,16 +51,19 @@ class LinkStats:
         return (f"{self.scans} scans, {self.checksum_errors} checksum errors, "
                 f"{self.framing_errors} framing errors, {self.rejected} rejected, "
                 f"{self.skipped_bytes} bytes skipped, {self.timeouts} silences, "
-                f"{self.reconnects} reconnects")
+                f"{self.stalls} stalls, {self.reconnects} reconnects")
 
 
 class ScanDriver:
     """Base of the serial scanner drivers: frames from a port, reconnecting when it goes quiet.
 
-    ``port`` is a device path or a pyserial URL. ``silence`` is how long without a complete
-    scan counts as a silent device; reconnection waits ``backoff`` seconds, doubling up to
-    ``backoff_max``. ``clock`` stamps frames on arrival (default: the wall clock);
-    :meth:`close` (from any thread) ends :meth:`frames`.
+    ``port`` is a device path or a pyserial URL. ``silence`` is how long without a byte counts
+    as a silent device (powered off, rebooted, no longer streaming). ``stall`` is how long
+    bytes may keep coming without a complete scan before the link counts as broken (default:
+    ten silences, at least 5 s): under heavy corruption many scans in a row may fail their
+    checks, and reconnecting then would only lose the scans in flight. Reconnection waits
+    ``backoff`` seconds, doubling up to ``backoff_max``. ``clock`` stamps frames on arrival
+    (default: the wall clock); :meth:`close` (from any thread) ends :meth:`frames`.
 
     :meth:`reset_decoder` runs before each :meth:`connect`, not after it: bytes that the
     handshake read past its last reply (the first scan, often) may be kept for :meth:`decode`.
@@ -66,11 +72,14 @@ class ScanDriver:
     name = "scanner"
     baudrate = 9600
 
-    def __init__(self, port: str, *, silence: float = 1.0, backoff: float = 0.1,
-                 backoff_max: float = 5.0, clock: Callable[[], float] = time.time,
-                 read_timeout: float = 0.05) -> None:
+    def __init__(self, port: str, *, silence: float = 1.0, stall: float | None = None,
+                 backoff: float = 0.1, backoff_max: float = 5.0,
+                 clock: Callable[[], float] = time.time, read_timeout: float = 0.05) -> None:
+        if silence <= 0:
+            raise ValueError(f"silence must be positive, got {silence}")
         self.port = port
         self.silence = silence
+        self.stall = max(5.0, 10.0 * silence) if stall is None else stall
         self.backoff = backoff
         self.backoff_max = backoff_max
         self.clock = clock
@@ -89,6 +98,11 @@ class ScanDriver:
     def decode(self, data: bytes) -> list[FloatArray]:
         """Feed received bytes; ranges in metres (``inf``: no return) of each complete scan."""
         raise NotImplementedError
+
+    def flush(self) -> list[FloatArray]:
+        """Ranges of scans held back for what follows them, now complete on their own (the
+        stream paused: the last scan before a cut); none by default."""
+        return []
 
     def stop_stream(self) -> None:
         """Ask the device to stop streaming (best effort, on close)."""
@@ -170,28 +184,48 @@ class ScanDriver:
         finally:
             self._disconnect()
 
-    def _stream(self) -> Iterator[ScanFrame]:
-        assert self.ser is not None and self.geometry is not None
+    def _frame(self, ranges: FloatArray, stamp: float) -> ScanFrame:
+        """The next frame: ``ranges`` (beyond the maximum range: no return) at ``stamp``."""
         lay = self.geometry
-        last = time.monotonic()
+        assert lay is not None
+        r = np.asarray(ranges, dtype=np.float64)
+        r = np.where((r > 0) & (r <= lay.max_range), r, np.inf)
+        frame = ScanFrame(stamp=stamp, ranges=r, angle_min=lay.angle_min,
+                          angle_increment=lay.angle_increment, max_range=lay.max_range,
+                          index=self.stats.scans)
+        self.stats.scans += 1
+        return frame
+
+    def _stream(self) -> Iterator[ScanFrame]:
+        """Frames until the device falls silent, stalls or the port fails; a scan held back
+        for its successor is flushed (stamped when its last bytes came) whenever the bytes
+        pause for a read timeout."""
+        assert self.ser is not None and self.geometry is not None
+        last_byte = last_scan = time.monotonic()
+        arrived = self.clock()
         while not self._stop:
             try:
                 data = self.ser.read(max(1, self.ser.in_waiting))
             except (OSError, serial.SerialException) as exc:
                 self.last_error = str(exc)
+                for ranges in self.flush():
+                    yield self._frame(ranges, arrived)
                 return
-            now = self.clock()
+            now = time.monotonic()
             if data:
-                for ranges in self.decode(data):
-                    r = np.asarray(ranges, dtype=np.float64)
-                    r = np.where((r > 0) & (r <= lay.max_range), r, np.inf)
-                    frame = ScanFrame(stamp=now, ranges=r, angle_min=lay.angle_min,
-                                      angle_increment=lay.angle_increment,
-                                      max_range=lay.max_range, index=self.stats.scans)
-                    self.stats.scans += 1
-                    last = time.monotonic()
-                    yield frame
-            if time.monotonic() - last > self.silence:
+                arrived = self.clock()
+                last_byte = now
+                scans = self.decode(data)
+            else:
+                scans = self.flush()
+            for ranges in scans:
+                last_scan = time.monotonic()
+                yield self._frame(ranges, arrived)
+            if now - last_byte > self.silence:
                 self.stats.timeouts += 1
-                self.last_error = f"no scan for {self.silence:g} s"
+                self.last_error = f"no byte for {self.silence:g} s"
+                return
+            if now - last_scan > self.stall:
+                self.stats.stalls += 1
+                self.last_error = f"no scan for {self.stall:g} s"
                 return

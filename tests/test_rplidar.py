@@ -75,7 +75,9 @@ def test_r9_r11_nodes(wire, start, quality, angle, dist):
     assert (bool(n.start[0]), int(n.quality[0])) == (start, quality)
     assert n.angle_deg[0] == angle and n.dist_mm[0] == dist
     assert encode_nodes(n.start, n.quality, n.angle_q6, n.dist_q2) == H(wire)
-    assert len(NodeDecoder(lock=1).feed(H(wire))) == 1  # passes the checks
+    dec = NodeDecoder(lock=1)
+    assert len(dec.feed(H(wire))) == 0  # held back for the window after it
+    assert len(dec.flush()) == 1  # passes the checks
 
 
 def test_r12_health_good_and_error_code_little_endian():
@@ -108,11 +110,13 @@ def test_beam_convention_clockwise_device_counter_clockwise_frame():
 
 # -- nodes and turns ---------------------------------------------------------------------------
 def turn(n: int = 360, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Start flags, angle_q6 and dist_q2 of one clean revolution of n nodes."""
+    """Start flags, angle_q6 and dist_q2 of one clean revolution of n nodes: walls 1.2 to
+    2.8 m away with 5 mm of noise, 5 % of the nodes without a return."""
     rng = np.random.default_rng(seed)
     start = np.arange(n) == 0
     angle = np.rint(np.arange(n) * (rp.ANGLE_FULL_Q6 / n)).astype(np.uint16)
-    dist = rng.integers(400, 40000, n).astype(np.uint16)
+    mm = 2000 + 800 * np.sin(np.arange(n) * (4 * np.pi / n) + seed) + rng.normal(0, 5, n)
+    dist = np.rint(mm * 4).astype(np.uint16)
     dist[rng.random(n) < 0.05] = 0
     return start, angle, dist
 
@@ -153,9 +157,8 @@ def test_garbage_resynchronises_by_sliding():
     t = [turn(seed=s) for s in range(3)]
     data = garbage + stream(t[0]) + garbage + stream(t[1], t[2])
     asm, got = feed_all(data, 64)
-    # turn 0 is cut by the garbage after it; turn 1 survives; turn 2 has no successor yet
-    assert len(got) == 1
-    np.testing.assert_array_equal(got[0].dist_q2, t[1][2])
+    # turns 0 and 1 survive the garbage around them; turn 2 has no successor yet
+    assert [g.dist_q2.tolist() for g in got] == [t[0][2].tolist(), t[1][2].tolist()]
     assert asm.skipped_bytes >= 97 and asm.framing_errors >= 1
 
 
@@ -197,7 +200,9 @@ def test_reject_angle_of_360_or_more():
     s, a, d = turn(seed=9)
     a = a.copy()
     a[-1] = 361 * 64
-    middle_rejected((s, a, d), "angle beyond 360")
+    # the decoder drops the node (no revolution reaches 360 degrees); its turn misses it
+    asm = middle_rejected((s, a, d), "angle sequence")
+    assert asm.framing_errors == 1
 
 
 def test_reject_too_few_nodes():
@@ -206,7 +211,11 @@ def test_reject_too_few_nodes():
 
 def test_lost_start_flag_does_not_merge_turns():
     s, a, d = turn(seed=9)
-    middle_rejected((np.zeros_like(s), a, d), "no start flag")  # the wrap ends the turn before
+    good = [turn(seed=k) for k in range(3)]
+    asm, got = feed_all(stream(good[0], (np.zeros_like(s), a, d), good[1], good[2]))
+    # the turn without its start flag is cut off the one before as a second revolution
+    assert [g.dist_q2.tolist() for g in got] == [good[0][2].tolist(), good[1][2].tolist()]
+    assert asm.trimmed == 360 and asm.rejected == 0
 
 
 def test_spurious_start_flag_splits_and_rejects():
@@ -340,7 +349,9 @@ def test_corrupted_session_measures_what_gets_through():
     assert t["intact_delivered"] >= 0.99 * t["intact"]
     # no checksum: single flips in distance bits pass; measured 11-20 of ~120 over 5 seeds
     assert t["wrong"] <= 0.25 * t["corrupted"]
-    assert max(wrong_beams, default=0) <= 4  # never a garbled turn, only a few beams
+    # never a garbled turn: a few beams, one per node whose distance bits were hit (or that
+    # was lost where a near point's parallax allowance covers the gap)
+    assert max(wrong_beams, default=0) <= 8
     assert drv.stats.rejected > 0 and drv.stats.framing_errors > 0
     assert drv.stats.skipped_bytes > 0 and drv.stats.checksum_errors == 0
 

@@ -4,7 +4,10 @@ It answers ``SCIP2.0`` (status ``0E``: it is already in SCIP 2.0), ``VV``, ``PP`
 ``BM``, ``QT``, ``RS``, ``TM0/1/2``, ``GD``/``GS`` (status ``10`` while the laser is off) and
 ``MD``/``MS`` (acknowledgement, then one reply per scan with the remaining-scan counter in its
 echo, 64-character data lines with sums, values split across lines where they fall). Other
-commands get status ``0E``. After a power cycle the laser is off and nothing streams.
+commands get status ``0E``. A power cycle is a reboot: the device is deaf for ``boot_time``
+(device seconds), then silent with the laser off, nothing streaming and its timer at zero;
+with ``scip1_on_boot`` it comes back speaking SCIP 1.1, as some URG-04LX firmware does,
+and answers every line but ``SCIP2.0`` with status ``E`` until it is switched to SCIP 2.0.
 
 Ranges come from a :class:`~drivers.devices.pty_device.ScanSource` in metres and leave as
 millimetres; a beam without a return leaves as ``0`` (an URG error code, below DMIN).
@@ -52,8 +55,13 @@ class HokuyoDevice(PtyDevice):
     name = "hokuyo"
 
     def __init__(self, source: ScanSource | None, *, corruption: Corruption | float = 0.0,
-                 seed: int = 0, speed: float = 1.0) -> None:
-        super().__init__(source, corruption=corruption, seed=seed, speed=speed)
+                 seed: int = 0, speed: float = 1.0, boot_time: float = 0.5,
+                 scip1_on_boot: bool = False, line_rate: float | None = None,
+                 glitch: bool = True) -> None:
+        super().__init__(source, corruption=corruption, seed=seed, speed=speed,
+                         boot_time=boot_time, line_rate=line_rate, glitch=glitch)
+        self.scip1_on_boot = scip1_on_boot
+        self.scip1 = False
         self.params = dict(URG04LX)
         if source is not None:
             want = self.params["AMAX"] - self.params["AMIN"] + 1
@@ -80,7 +88,8 @@ class HokuyoDevice(PtyDevice):
 
     # -- device state ---------------------------------------------------------------------------
     def boot(self) -> None:
-        """Power-up: laser off, nothing streaming, timer at zero, SCIP 2.0 already."""
+        """Power-up: laser off, nothing streaming, timer at zero, SCIP 1.1 or 2.0."""
+        self.scip1 = self.scip1_on_boot and self.boots > 1  # not at start()
         self._rx.clear()
         self.laser_on = False
         self.stream = None
@@ -126,7 +135,11 @@ class HokuyoDevice(PtyDevice):
     def _command(self, line: bytes) -> None:
         body = line.split(b";", 1)[0]
         cmd, args = body[:2], body[2:]
-        if body == b"SCIP2.0":
+        if self.scip1:  # SCIP 1.1: a one-character status, E for what it does not know
+            ok = body == b"SCIP2.0"
+            self.send(line + b"\n" + (b"0" if ok else b"E") + b"\n\n")
+            self.scip1 = not ok
+        elif body == b"SCIP2.0":
             self.send(scip.reply(line, b"0E"))
         elif cmd in (b"VV", b"PP", b"II") and not args:
             self.send(scip.reply(line, b"00", self._info(cmd)))

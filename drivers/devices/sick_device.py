@@ -1,12 +1,16 @@
 """A simulated SICK LMS 2xx on a pseudo-terminal.
 
-It behaves as ``../shared/protocols.md`` section 1 and 6 describe: after power-up it sends the
-``90`` telegram and waits in request mode at 9600 baud with the 180 degree / 0.5 degree variant;
-every accepted telegram is answered with ``06`` and a reply telegram at the rate in force;
-a baud change is answered at the old rate. The units live in the configuration block (read
-with ``74``, written with ``77`` in installation mode) and survive a power cycle, as the
-LMS's EEPROM does. The host's line rate is read from the pty: while it differs from the
-device's, what either side sends arrives as garbage, as on a real line.
+It behaves as ``../shared/protocols.md`` section 1 and 6 describe: a power-up (or the reset
+command ``10``) leaves it deaf for ``boot_time``, then it sends the ``90`` telegram and waits in
+request mode at 9600 baud with the 180 degree / 0.5 degree variant, whatever rate and mode
+it had before; every accepted telegram is answered with ``06`` and a reply telegram at the
+rate in force; a baud change is answered at the old rate. With ``paced`` the bytes leave at
+the line rate (baud / 10 bytes a second), so that a power cut truncates the telegram on the
+line and, as on a real LMS, a scan that falls due while the line is still busy is not sent.
+The units live in the configuration block (read with ``74``, written with ``77`` in
+installation mode) and survive a power cycle, as the LMS's EEPROM does. The host's line
+rate is read from the pty: while it differs from the device's, what either side sends
+arrives as garbage, as on a real line.
 """
 
 from __future__ import annotations
@@ -43,13 +47,17 @@ class SickDevice(PtyDevice):
     name = "sick"
 
     def __init__(self, source: ScanSource | None, *, corruption: Corruption | float = 0.0,
-                 seed: int = 0, speed: float = 1.0, units: int = 0) -> None:
-        super().__init__(source, corruption=corruption, seed=seed, speed=speed)
+                 seed: int = 0, speed: float = 1.0, units: int = 0, boot_time: float = 0.5,
+                 paced: bool = False, glitch: bool = True) -> None:
+        super().__init__(source, corruption=corruption, seed=seed, speed=speed,
+                         boot_time=boot_time, glitch=glitch)
+        self.paced = paced
         self.config = bytearray(CONFIG_LEN)
         self.config[UNITS_AT] = units
         self._sources: dict[tuple[int, int], ScanSource] = {}
-        self.boots = 0
         self.streamed = 0
+        self.skipped = 0  # scans not sent because the line was busy (paced only)
+        self._set_baud(9600)
 
     @staticmethod
     def sensor_model(angle: int = 180, resolution: int = 100,
@@ -66,13 +74,18 @@ class SickDevice(PtyDevice):
 
     # -- power-up ---------------------------------------------------------------------------
     def boot(self) -> None:
-        self.boots += 1
-        self.baud = 9600
+        self._set_baud(9600)
         self.mode = "request"
         self.installation = False
         self.variant = (180, 50)
         self._rx = TelegramReceiver(address=HOST)
+
+    def booted(self) -> None:
         self._send_telegram(bytes([0x90]) + TYPE, ack=False)
+
+    def _set_baud(self, baud: int) -> None:
+        self.baud = baud
+        self.line_rate = baud / 10.0 if self.paced else None
 
     # -- the line -----------------------------------------------------------------------------
     def _host_baud(self) -> int | None:
@@ -101,9 +114,9 @@ class SickDevice(PtyDevice):
 
     # -- commands ---------------------------------------------------------------------------
     def _handle(self, cmd: int, data: bytes) -> None:
-        if cmd == 0x10:  # reset: reply, then the power-on telegram at 9600
+        if cmd == 0x10:  # reset: reply, reboot, then the power-on telegram at 9600
             self._send_telegram(bytes([0x91]))
-            self.boot()
+            self.reboot()
         elif cmd == 0x20 and data:
             self._mode_change(data)
         elif cmd == 0x30 and data[:1] == b"\x01":
@@ -138,7 +151,7 @@ class SickDevice(PtyDevice):
             self._send_telegram(bytes([0xA0, 0 if ok else 1]))
         elif code in _BAUD_CODES:
             self._send_telegram(bytes([0xA0, 0]))  # at the old rate, then switch
-            self.baud = _BAUD_CODES[code]
+            self._set_baud(_BAUD_CODES[code])
         elif code == 0x24:
             self._send_telegram(bytes([0xA0, 0]))
             self.mode = "stream"
@@ -184,5 +197,9 @@ class SickDevice(PtyDevice):
         if self.mode != "stream":
             return
         k = self.next_scan()
-        if k is not None:
-            self._send_scan(k)
+        if k is None:
+            return
+        if self.line_busy:  # the previous telegram is still on the line
+            self.skipped += 1
+            return
+        self._send_scan(k)

@@ -60,7 +60,8 @@ def add_live_options(p: argparse.ArgumentParser, required: bool) -> None:
     p.add_argument("--corruption", type=float, default=0.0,
                    help="with --simulate: share of bytes corrupted on the wire (e.g. 0.001)")
     p.add_argument("--silence", type=positive_float, default=1.0,
-                   help="seconds without a scan before reconnecting (default 1)")
+                   help="seconds without a byte from the scanner before reconnecting "
+                   "(default 1)")
 
 
 def open_live_source(args: argparse.Namespace, out: Path):
