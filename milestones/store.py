@@ -85,7 +85,7 @@ def load_milestones(path: str | os.PathLike[str]) -> MilestoneManager:
     except StoreError:
         raise
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error,
-            NotImplementedError) as exc:
+            NotImplementedError, RuntimeError) as exc:  # RuntimeError: an encrypted member
         raise StoreError(f"{path}: not a readable milestone file ({exc})") from exc
     if "header" not in contents:
         raise StoreError(f"{path}: not a milestone file (no header)")

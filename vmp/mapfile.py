@@ -197,7 +197,7 @@ def load_map(path: str | os.PathLike[str]) -> MapData:
     except InputError:
         raise
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError, zlib.error,
-            UnicodeDecodeError, NotImplementedError) as exc:
+            UnicodeDecodeError, NotImplementedError, RuntimeError) as exc:
         raise InputError(f"{path}: not a readable vmp-slam map ({exc})") from exc
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise InputError(f"{path}: not a vmp-slam map file")
