@@ -23,6 +23,7 @@ hang.
 from __future__ import annotations
 
 import argparse
+import functools
 import gzip
 import io
 import json
@@ -94,13 +95,20 @@ def _zip(member: str, data: bytes) -> bytes:
     return out.getvalue()
 
 
-def _saved_map(workdir: Path) -> bytes:
+@functools.cache
+def _lab_run():
+    """A short mapping run of the lab scenario: the source of the saved-file excerpts."""
     from drivers import open_source
-    from vmp.config import config_to_dict
-    from vmp.mapfile import save_map
     from vmp.run import MappingRun
 
-    result = MappingRun(open_source("lab", scans=60)).run()
+    return MappingRun(open_source("lab", scans=60)).run()
+
+
+def _saved_map(workdir: Path) -> bytes:
+    from vmp.config import config_to_dict
+    from vmp.mapfile import save_map
+
+    result = _lab_run()
     p = result.pipeline
     path = workdir / "seed.vmpmap"
     save_map(path, p.map, p.milestones, p.back.graph, config_to_dict(result.config),
@@ -109,23 +117,17 @@ def _saved_map(workdir: Path) -> bytes:
 
 
 def _saved_milestones(workdir: Path) -> bytes:
-    from drivers import open_source
     from milestones.store import save_milestones
-    from vmp.run import MappingRun
 
-    result = MappingRun(open_source("lab", scans=60)).run()
     path = workdir / "seed-milestones.npz"
-    save_milestones(path, result.pipeline.milestones)
+    save_milestones(path, _lab_run().pipeline.milestones)
     return path.read_bytes()
 
 
 def _saved_grid(workdir: Path) -> bytes:
-    from drivers import open_source
     from vmp.export import write_ros_map
-    from vmp.run import MappingRun
 
-    result = MappingRun(open_source("lab", scans=60)).run()
-    write_ros_map(workdir / "seed-grid.yaml", result.grid(0.1))
+    write_ros_map(workdir / "seed-grid.yaml", _lab_run().grid(0.1))
     return (workdir / "seed-grid.pgm").read_bytes()
 
 

@@ -5,12 +5,12 @@ the simulated URG-04LX, and driver sessions against it over a pty (clean, corrup
 from __future__ import annotations
 
 import math
-import threading
 import time
 
 import numpy as np
 import pytest
 import serial
+from serial_support import Session
 
 from drivers import scip2_protocol as scip
 from drivers.devices.hokuyo_device import HokuyoDevice
@@ -302,38 +302,6 @@ def test_device_clusters_keep_the_nearest_valid_range():
 
 
 # -- driver sessions ---------------------------------------------------------------------------
-class Session:
-    """The driver's frames collected on a thread; fails instead of hanging."""
-
-    def __init__(self, driver: HokuyoScip2Driver) -> None:
-        self.driver = driver
-        self.frames: list = []
-        self.crash: BaseException | None = None
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        try:
-            for frame in self.driver.frames():
-                self.frames.append(frame)
-        except BaseException as exc:  # reported by the test
-            self.crash = exc
-
-    def wait(self, cond, timeout: float, what: str) -> None:
-        deadline = time.monotonic() + timeout
-        while not cond():
-            assert self.crash is None, repr(self.crash)
-            assert time.monotonic() < deadline, f"timed out waiting for {what}: " \
-                f"{self.driver.stats.summary()}; last error: {self.driver.last_error}"
-            time.sleep(0.02)
-
-    def stop(self) -> None:
-        self.driver.close()
-        self.thread.join(timeout=5.0)
-        assert not self.thread.is_alive(), "the driver did not stop"
-        assert self.crash is None, repr(self.crash)
-
-
 def _expected(values: np.ndarray) -> np.ndarray:
     return np.where((values >= 20) & (values <= 5600), values / 1000.0, np.inf)
 

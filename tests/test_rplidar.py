@@ -10,6 +10,7 @@ import time
 import numpy as np
 import pytest
 import serial
+from serial_support import turn, wire
 
 from drivers import rplidar_protocol as rp
 from drivers.devices.pty_device import ScanSource
@@ -109,20 +110,6 @@ def test_beam_convention_clockwise_device_counter_clockwise_frame():
 
 
 # -- nodes and turns ---------------------------------------------------------------------------
-def turn(n: int = 360, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Start flags, angle_q6 and dist_q2 of one clean revolution of n nodes: walls 1.2 to
-    2.8 m away with 5 mm of noise, 5 % of the nodes without a return."""
-    rng = np.random.default_rng(seed)
-    start = np.arange(n) == 0
-    angle = np.rint(np.arange(n) * (rp.ANGLE_FULL_Q6 / n)).astype(np.uint16)
-    mm = 2000 + 800 * np.sin(np.arange(n) * (4 * np.pi / n) + seed) + rng.normal(0, 5, n)
-    dist = np.rint(mm * 4).astype(np.uint16)
-    dist[rng.random(n) < 0.05] = 0
-    return start, angle, dist
-
-
-def wire(start, angle, dist) -> bytes:
-    return encode_nodes(start, np.where(dist > 0, 47, 0), angle, dist)
 
 
 def feed_all(data: bytes, chunk: int | None = None) -> tuple[TurnAssembler, list[rp.Turn]]:

@@ -26,7 +26,8 @@ from vmp.fileio import atomic_write
 from vmp.state import StateError, decode, encode
 from vmp.types import ScanFrame
 
-__all__ = ["CHECKPOINT", "Every", "fingerprint", "load_checkpoint", "save_checkpoint"]
+__all__ = ["CHECKPOINT", "Every", "fingerprint", "load_checkpoint", "remove_checkpoint",
+           "save_checkpoint"]
 
 CHECKPOINT = "checkpoint.npz"
 FORMAT = "vmp-slam checkpoint"
