@@ -37,7 +37,8 @@ def test_edge_kinds(kind):
         g.add(0, 1, np.zeros(3), np.eye(3), "teleport")
 
 
-def test_marginals_equal_the_dense_inverse_blocks():
+@pytest.mark.parametrize("dense_limit", [0, 900])  # the sparse and the dense path
+def test_marginals_equal_the_dense_inverse_blocks(dense_limit):
     from scipy.sparse import csr_matrix
     from scipy.sparse import random as sparse_random
 
@@ -46,8 +47,9 @@ def test_marginals_equal_the_dense_inverse_blocks():
     n = 40
     m = 3 * (n - 1)
     J = sparse_random(200, m, density=0.05, random_state=2) + csr_matrix(np.eye(200, m))
-    cov = np.linalg.inv((J.T @ J).toarray() + np.eye(m) * 1e-9)
-    got = _marginals(J, n, block=7)  # blocks that do not divide the node count
+    H = (J.T @ J).tocsc()
+    cov = np.linalg.inv(H.toarray() + np.eye(m) * 1e-9)
+    got = _marginals(H, n, block=7, dense_limit=dense_limit)  # blocks not dividing the nodes
     idx = np.arange(n - 1)[:, None] * 3 + np.arange(3)
     np.testing.assert_allclose(got[1:], cov[idx[:, :, None], idx[:, None, :]], atol=1e-10)
     assert np.all(got[0] == 0)
