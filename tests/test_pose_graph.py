@@ -37,22 +37,31 @@ def test_edge_kinds(kind):
         g.add(0, 1, np.zeros(3), np.eye(3), "teleport")
 
 
-@pytest.mark.parametrize("dense_limit", [0, 900])  # the sparse and the dense path
-def test_marginals_equal_the_dense_inverse_blocks(dense_limit):
+def test_marginals_equal_the_dense_inverse_blocks():
     from scipy.sparse import csr_matrix
     from scipy.sparse import random as sparse_random
 
-    from vmp.pose_graph import _marginals
+    from vmp.pose_graph import Marginals
+    from vmp.state import decode, encode
 
     n = 40
     m = 3 * (n - 1)
     J = sparse_random(200, m, density=0.05, random_state=2) + csr_matrix(np.eye(200, m))
     H = (J.T @ J).tocsc()
     cov = np.linalg.inv(H.toarray() + np.eye(m) * 1e-9)
-    got = _marginals(H, n, block=7, dense_limit=dense_limit)  # blocks not dividing the nodes
+    got = Marginals(H, n)
     idx = np.arange(n - 1)[:, None] * 3 + np.arange(3)
-    np.testing.assert_allclose(got[1:], cov[idx[:, :, None], idx[:, None, :]], atol=1e-10)
-    assert np.all(got[0] == 0)
+    want = cov[idx[:, :, None], idx[:, None, :]]
+    for node in (5, 1, 39, 5):  # solved when asked, once
+        np.testing.assert_allclose(got[node], want[node - 1], atol=1e-10)
+    assert np.all(got[0] == 0) and len(got) == n
+    with pytest.raises(IndexError):
+        got[n]
+    # A checkpoint keeps the information, not the factorisation, and solves again from it.
+    tree, arrays = encode(got)
+    again = decode(tree, arrays)
+    np.testing.assert_allclose(again[7], want[6], atol=1e-10)
+    np.testing.assert_allclose(again[5], want[4], atol=1e-10)
 
 
 def _ring(n: int = 40, radius: float = 10.0) -> np.ndarray:

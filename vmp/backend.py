@@ -90,7 +90,9 @@ class BackEnd:
         self.anchor: int | None = None
         # This scan's accepted registration against the anchor, if any.
         self.anchor_registration: Registration | None = None
-        self._abs_cov: list[FloatArray] = []  # per milestone: covariance in the map frame
+        # Per milestone: its covariance in the map frame; None where the graph's marginals
+        # hold it (solved when first asked for, see milestone_cov).
+        self._abs_cov: list[FloatArray | None] = []
         self._closed: set[tuple[int, int]] = set()  # loops closed without a handover
         self._neighbours: dict[int, set[int]] = {}  # milestone -> the ones edges join it to
         # A loop the search found, waiting for a second to agree: (anchor, milestone, z,
@@ -128,7 +130,10 @@ class BackEnd:
 
     def milestone_cov(self, mid: int) -> FloatArray:
         """A milestone's covariance in the map frame."""
-        return self._abs_cov[mid]
+        cov = self._abs_cov[mid]
+        if cov is None:
+            cov = self._abs_cov[mid] = self.graph.marginals[mid] + MARGINAL_FLOOR
+        return cov
 
     def cov_via_anchor(self, pose: FloatArray) -> FloatArray:
         """How uncertain the robot at ``pose`` is in the map frame through its anchor's chain."""
@@ -195,7 +200,8 @@ class BackEnd:
 
     def _compound_cov(self, anchor: int, rel: FloatArray, cov: FloatArray) -> FloatArray:
         """Map-frame covariance of ``anchor (+) rel``, given the edge covariance ``cov``."""
-        return compose_covariance(self.milestones.pose(anchor), self._abs_cov[anchor], rel, cov)
+        return compose_covariance(self.milestones.pose(anchor), self.milestone_cov(anchor), rel,
+                                  cov)
 
     # ---- returns to stored milestones ------------------------------------------------------
 
@@ -297,7 +303,7 @@ class BackEnd:
         poses = self.graph.optimize(self.milestones.poses)
         self.milestones.set_poses(poses)
         if self.graph.marginals is not None:  # the loop has shrunk every milestone's doubt
-            self._abs_cov = [c + MARGINAL_FLOOR for c in self.graph.marginals]
+            self._abs_cov = [None] * len(self.graph.marginals)
         self.stats["graph adjustments"] += 1
         self.stats["graph adjustment seconds"] += time.perf_counter() - t
         self.view.anchors_moved(self.milestones.ids, poses)

@@ -20,13 +20,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import lapack
 from scipy.sparse import csc_matrix, identity
 from scipy.sparse.linalg import splu
 
 from vmp.types import FloatArray, relative, wrap_angle
 
-__all__ = ["ROBUST_C2", "Edge", "PoseGraph"]
+__all__ = ["ROBUST_C2", "Edge", "Marginals", "PoseGraph"]
 
 # A loop edge disagreeing by more than this (chi-square, 3 dof 99 %) is an outlier candidate.
 ROBUST_C2 = 11.34
@@ -55,43 +54,47 @@ class Edge:
     kind: str  # "path" or "loop"
 
 
-def _marginals(H: csc_matrix, n: int, block: int = 64, dense_limit: int = 900
-               ) -> FloatArray | None:
-    """The 3x3 marginal covariance of every node from the Gauss-Newton information ``H``
-    (``J'J`` over the unknowns of nodes 1..n-1; node 0 is fixed and gets zeros).
+class Marginals:
+    """The 3x3 marginal covariance of every node, from the Gauss-Newton information ``H``
+    over the unknowns of nodes 1..n-1 (node 0 is fixed: zeros), solved for a node when it is
+    first asked for.
 
-    Up to ``dense_limit`` unknowns (300 nodes) a dense Cholesky inverse is quickest (LAPACK's
-    ``potri``: about a quarter of ``numpy.linalg.inv``'s time at 780 unknowns). Beyond, the
-    information is sparse (a chain plus loops), so it is factorised once and solved for
-    ``block`` nodes' columns at a time, keeping only their diagonal blocks: a dense inverse
-    of a thousand-node graph took most of a second per adjustment.
+    The information is factorised once (sparse LU: a chain plus loops); a node's block is one
+    solve for its three columns. A mapper asks for a few nodes between two adjustments (the
+    anchor, the candidates of a loop), so solving them all was most of an adjustment's time:
+    a quarter of a second per adjustment on fr079's 500 milestones.
     """
-    H = (H + identity(H.shape[0], format="csc") * 1e-9).tocsc()
-    out = np.zeros((n, 3, 3))
-    m = n - 1
-    if H.shape[0] <= dense_limit:
-        factor, info = lapack.dpotrf(H.toarray(), lower=True)
-        if info != 0:
-            return None
-        C, info = lapack.dpotri(factor, lower=True)  # the lower triangle of the inverse
-        if info != 0 or not np.isfinite(C).all():
-            return None
-        blocks = C.reshape(m, 3, m, 3)[np.arange(m), :, np.arange(m), :]  # (m, 3, 3)
-        lower = np.tril(blocks)
-        out[1:] = lower + np.swapaxes(np.tril(blocks, -1), 1, 2)
-        return out
-    try:
-        lu = splu(H)
-    except RuntimeError:  # singular: an unconstrained node
-        return None
-    for first in range(0, m, block):  # columns in blocks: memory stays O(N * block)
-        nodes = np.arange(first, min(first + block, m))
-        cols = (3 * nodes[:, None] + np.arange(3)).ravel()
-        rhs = np.zeros((H.shape[0], len(cols)))
-        rhs[cols, np.arange(len(cols))] = 1.0
-        x = lu.solve(rhs)[cols].reshape(len(nodes), 3, len(nodes), 3)
-        out[nodes + 1] = x[np.arange(len(nodes)), :, np.arange(len(nodes)), :]
-    return out
+
+    TRANSIENT = ("_lu",)  # rebuilt from the stored information when needed (vmp.state)
+
+    def __init__(self, H: csc_matrix, n: int) -> None:
+        H = (H + identity(H.shape[0], format="csc") * 1e-9).tocsc()
+        self.data, self.indices, self.indptr = H.data, H.indices, H.indptr
+        self.n = n
+        self._solved: dict[int, FloatArray] = {}
+        self._lu = splu(H)  # RuntimeError when singular (an unconstrained node)
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, node: int) -> FloatArray:
+        node = int(node)
+        if not 0 <= node < self.n:
+            raise IndexError(f"node {node} of {self.n}")
+        if node == 0:
+            return np.zeros((3, 3))
+        block = self._solved.get(node)
+        if block is None:
+            if self._lu is None:
+                size = len(self.indptr) - 1
+                self._lu = splu(csc_matrix((self.data, self.indices, self.indptr),
+                                           shape=(size, size)))
+            cols = 3 * (node - 1) + np.arange(3)
+            rhs = np.zeros((len(self.indptr) - 1, 3))
+            rhs[cols, np.arange(3)] = 1.0
+            x = self._lu.solve(rhs)[cols]
+            block = self._solved[node] = 0.5 * (x + x.T)
+        return block.copy()
 
 
 class _Normal:
@@ -137,7 +140,7 @@ class PoseGraph:
 
     def __init__(self) -> None:
         self.edges: list[Edge] = []
-        self.marginals: FloatArray | None = None  # (N, 3, 3) after optimize(); node 0 fixed
+        self.marginals: Marginals | None = None  # after optimize(); node 0 fixed
         self.weights: FloatArray = np.zeros(0)  # each edge's residual scale after optimize()
 
     def add(self, i: int, j: int, z: FloatArray, covariance: FloatArray, kind: str) -> Edge:
@@ -231,7 +234,10 @@ class PoseGraph:
                     break
         self.weights = w
         x[:, 2] = wrap_angle(x[:, 2])
-        self.marginals = _marginals(H, n)
+        try:
+            self.marginals = Marginals(H, n)
+        except RuntimeError:  # singular: an unconstrained node
+            self.marginals = None
         return x
 
     @staticmethod

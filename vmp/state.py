@@ -6,7 +6,9 @@ it. Shared objects stay shared and cycles close (each object is written once, th
 reference). Only classes of this program's packages and of filterpy may be rebuilt, and only
 by filling their attributes (no constructor, no code named by the file runs); anything else
 in the graph is an error that names where it was found. A k-d tree is rebuilt from its points
-(the same points give the same tree). Objects given in ``keep`` (a view, whose recording
+(the same points give the same tree). Attributes a class names in its ``TRANSIENT`` tuple (a
+factorisation it can redo from what it keeps) are not written and come back as None. Objects
+given in ``keep`` (a view, whose recording
 cannot be saved) are written by name and replaced by the caller's on decoding.
 """
 
@@ -90,8 +92,10 @@ class _Encoder:
         cls = type(o)
         if not cls.__module__.startswith(REBUILDABLE) or not hasattr(o, "__dict__"):
             raise StateError(f"{path}: a {cls.__module__}.{cls.__qualname__} cannot be written")
+        transient = getattr(cls, "TRANSIENT", ())
         return {"$obj": _name(cls), "ref": n,
-                "state": {k: self.enc(v, f"{path}.{k}") for k, v in vars(o).items()}}
+                "state": {k: self.enc(v, f"{path}.{k}") for k, v in vars(o).items()
+                          if k not in transient}}
 
 
 def encode(root: object, keep: dict[str, object] | None = None
@@ -166,6 +170,7 @@ class _Decoder:
         if "$obj" in node:
             cls = _class(node["$obj"])
             o = self._made(node, cls.__new__(cls))
+            o.__dict__.update(dict.fromkeys(getattr(cls, "TRANSIENT", ())))
             o.__dict__.update({k: self.dec(v) for k, v in node["state"].items()})
             return o
         raise StateError(f"the state holds a node of no known kind: {sorted(node)[:3]}")
