@@ -213,9 +213,10 @@ class Matcher:
         drifted far (a loop after a long way round): a matching signature says the robot
         stands near the node, turned by the offset. Returns the registration to judge."""
         c = self.config
-        retry = register(self.reference(mid), points, np.array([0.0, 0.0, offset]))
         # Only a clear place and a close fit: this guess ignores the prediction.
-        if (fits(retry, c.registration) and ratio <= c.matching.retry_max_ratio
-                and retry.inliers >= c.matching.retry_min_inliers):
+        if ratio > c.matching.retry_max_ratio:
+            return reg, Seed.PREDICTION
+        retry = register(self.reference(mid), points, np.array([0.0, 0.0, offset]))
+        if fits(retry, c.registration) and retry.inliers >= c.matching.retry_min_inliers:
             return retry, Seed.NODE
         return reg, Seed.PREDICTION
