@@ -170,8 +170,12 @@ class CarmenLog(LineLog):
 
     Odometry: a FLASER or ROBOTLASER1 scan carries its own. A RAWLASER scan carries none; it
     gets the pose of the ODOM lines interpolated to its stamp (a log without ODOM lines gives
-    scans without odometry). In a GMapping output log (one with ``NEFF`` lines, like the
-    corrected Radish logs) the FLASER poses are GMapping's corrected estimates, not odometry:
+    scans without odometry). A FLASER scan whose odometry is exactly the last ODOM line's pose
+    (ACES's logger copies it into every scan, up to 0.19 s old at the scan's stamp) gets the
+    ODOM lines' pose interpolated to its own stamp too; a logger that interpolates itself
+    (fr079's) writes poses between the ODOM lines, which are kept. In a GMapping output log
+    (one with ``NEFF`` lines, like the corrected Radish logs; they follow its first scan) the
+    FLASER poses are GMapping's corrected estimates, not odometry:
     the raw odometry is rebuilt from the ODOM lines (see :meth:`_rebuild`) and the corrected
     poses are kept in :attr:`poses`, one per scan, to compare against (:meth:`reference`).
     """
@@ -210,10 +214,23 @@ class CarmenLog(LineLog):
         params: dict[str, str] = {}
         odom_t: list[float] = []  # recent ODOM lines: stamps and poses
         odom_p: list[np.ndarray] = []
-        pending: list[tuple[int, ScanFrame]] = []  # pose-less scans waiting for ODOM lines
+        # Scans waiting for the ODOM line after their stamp, in file order: (line, frame,
+        # whether its odometry is read from the ODOM lines).
+        pending: list[tuple[int, ScanFrame, bool]] = []
         no_odometry = False
         prev: tuple[np.ndarray, np.ndarray] | None = None  # (corrected pose, rebuilt odom)
         self._odom_lines = 0  # ODOM lines since the last FLASER
+        flasers = 0
+
+        def release(upto: float) -> Iterator[ScanFrame]:
+            """The waiting scans stamped up to ``upto``, in order."""
+            while pending and (pending[0][1].stamp <= upto or len(pending) > MAX_WAITING):
+                lno, f, interpolate = pending.pop(0)
+                self._line = lno
+                if interpolate and odom_t:  # beyond the last ODOM line its pose holds
+                    f = _with_odom(f, interpolate_pose(odom_t, odom_p, f.stamp))
+                yield f
+
         for no, line in lines:
             parts = line.split()
             if not parts or parts[0].startswith("#"):
@@ -233,12 +250,9 @@ class CarmenLog(LineLog):
                 odom_t.append(pose[0])
                 odom_p.append(pose[1])
                 self._odom_lines += 1
-                if len(odom_t) > 2:
+                if len(odom_t) > ODOM_HISTORY:
                     del odom_t[0], odom_p[0]
-                while pending and pending[0][1].stamp <= odom_t[-1]:
-                    lno, f = pending.pop(0)
-                    self._line = lno
-                    yield _with_odom(f, interpolate_pose(odom_t, odom_p, f.stamp))
+                yield from release(odom_t[-1])
                 continue
             if kind not in _LASER_WORDS:
                 continue
@@ -249,22 +263,33 @@ class CarmenLog(LineLog):
                 continue
             if frame.odom is None and not no_odometry:
                 # A RAWLASER line: odometry comes from the ODOM lines around its stamp.
-                pending.append((no, frame))
+                pending.append((no, frame, True))
                 if not odom_t and len(pending) > 50:
                     no_odometry = True  # a log without ODOM lines: scans carry none
-                    for lno, f in pending:
+                    for lno, f, _ in pending:
                         self._line = lno
                         yield f
                     pending.clear()
                 continue
             if kind == "FLASER" and frame.odom is not None:
+                stale = (not self.gmapping and flasers >= NOT_GMAPPING and bool(odom_p)
+                         and np.array_equal(frame.odom, odom_p[-1]))
+                flasers += 1
+                if stale or pending:
+                    pending.append((no, frame, stale))
+                    if odom_t:
+                        yield from release(odom_t[-1])
+                    continue
                 frame, prev = self._rebuild(frame, odom_p, prev)
                 self._odom_lines = 0
+            elif pending:
+                pending.append((no, frame, False))
+                continue
             self._line = no
             yield frame
-        for lno, f in pending:  # after the last ODOM line: the last pose holds
+        for lno, f, interpolate in pending:  # after the last ODOM line: the last pose holds
             self._line = lno
-            yield _with_odom(f, interpolate_pose(odom_t, odom_p, f.stamp))
+            yield _with_odom(f, interpolate_pose(odom_t, odom_p, f.stamp)) if interpolate else f
         if not self.gmapping:
             self.poses = []
 
@@ -317,6 +342,9 @@ def read_carmen(path: str | os.PathLike[str], strict: bool = False) -> Iterator[
     return iter(CarmenLog(path, strict=strict))
 
 
+ODOM_HISTORY = 64  # ODOM lines kept to interpolate scans at their stamps
+MAX_WAITING = 64  # scans waiting for an ODOM line beyond this go on with what they have
+NOT_GMAPPING = 3  # FLASER lines without a NEFF line after them: not a GMapping output log
 _SICK_NO_RETURN_MM = np.array([8191.0, 16383.0, 32767.0])
 _LASER_WORDS = ("FLASER", "ROBOTLASER1", "RAWLASER1", "RAWLASER2", "RAWLASER3", "RAWLASER4")
 

@@ -1,8 +1,10 @@
 """The front end: where the robot is between corrections.
 
 The filter moves by the wheel odometry increment since the last scan, refined by registering
-the scan against a recent keyframe (:mod:`vmp.scan_odometry`). Odometry alone is tracked beside
-it, for comparison; a source whose odometry pauses (scans without it) resumes where it stopped.
+the scan against a recent keyframe (:mod:`vmp.scan_odometry`). The increment is the odometry's
+between the times the two scans were taken: their stamps less the delay learned from the
+registered turns (:mod:`vmp.latency`). Odometry alone is tracked beside it, for comparison; a
+source whose odometry pauses (scans without it) resumes where it stopped.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import numpy as np
 
 from vmp.config import MappingConfig
 from vmp.fusion import PoseFilter
+from vmp.latency import Latency
 from vmp.scan_odometry import ScanOdometry
 from vmp.types import FloatArray, ScanFrame, compose, inverse, relative, rotate_covariance
 
@@ -32,7 +35,10 @@ class FrontEnd:
         self.filter: PoseFilter | None = None
         self.odom_pose = np.zeros(3)  # where odometry alone puts the robot
         self._odom_offset = np.zeros(3)  # odometry frame -> that pose, after any gaps
-        self._last_odom: FloatArray | None = None  # the odometry of the scan before
+        self._last_odom: FloatArray | None = None  # the odometry of the scan before ...
+        self._last_taken: FloatArray | None = None  # ... and when it was taken (the delay off)
+        self._last_stamp = 0.0
+        self.latency = Latency()
         # Motion noise since the last anchor correction: how far a correction may move.
         self.motion_since_fix = np.zeros((3, 3))
         # The last increment (scanner frame) and its covariance; zero before the second scan.
@@ -41,6 +47,12 @@ class FrontEnd:
     def predict(self, frame: ScanFrame) -> None:
         """Move the filter to this scan (the first scan starts it at its odometry)."""
         odom = frame.odom
+        taken = None
+        if odom is not None:
+            self.latency.odometry(frame.stamp, odom)
+            taken = self.latency.at(frame.stamp)
+            if taken is None:  # the history does not reach back: the stamp's own
+                taken = odom
         if self.filter is None:
             start = odom if odom is not None else np.zeros(3)
             self.filter = PoseFilter(start, np.diag(np.square(INITIAL_SIGMA)),
@@ -48,10 +60,10 @@ class FrontEnd:
             self.odom_pose = start.copy()
         else:
             # The wheel increment is known when this scan and the one before carry odometry.
-            wheel = (relative(self._last_odom, odom)
-                     if odom is not None and self._last_odom is not None else None)
+            wheel = (relative(self._last_taken, taken)
+                     if taken is not None and self._last_taken is not None else None)
             if odom is not None:
-                if wheel is None:  # odometry resumes: continue from where it stopped
+                if self._last_odom is None:  # odometry resumes: continue from where it stopped
                     self._odom_offset = compose(self.odom_pose, inverse(odom))
                 self.odom_pose = compose(self._odom_offset, odom)
             u, q = self.scan_odometry.increment(frame.points(), wheel)
@@ -59,7 +71,12 @@ class FrontEnd:
             self.filter.predict(u, q)
             self.motion_since_fix = self.motion_since_fix + rotate_covariance(
                 q, self.filter.pose[2])
+            if self.scan_odometry.registered is not None:
+                self.latency.registered(self._last_stamp, frame.stamp,
+                                        float(self.scan_odometry.registered[2]))
         self._last_odom = odom
+        self._last_taken = taken
+        self._last_stamp = frame.stamp
 
     @property
     def pose(self) -> FloatArray:

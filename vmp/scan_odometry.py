@@ -48,6 +48,8 @@ MOUNT_FORGET = 0.999  # per turn learned from
 MOUNT_SIGMA = 0.01  # the offset is used once known to this (m) ...
 MAX_MOUNT = 0.5  # ... and at most this far from the axle (m)
 MAX_NOISE_SCALE = 100.0
+SEES_XY = 0.05  # a fitting registration this sure in every direction (m) ...
+SEES_THETA = math.radians(1.0)  # ... and heading (rad) overrules wheels that disagree
 NO_ODOMETRY = np.diag([1.0, 1.0, 1.0])  # a source without odometry: "within a metre"
 NO_ODOMETRY.flags.writeable = False
 
@@ -73,6 +75,9 @@ class ScanOdometry:
         self.mount = np.zeros(2)
         self._mount_normal = np.zeros((2, 2))
         self._mount_rhs = np.zeros(2)
+        # The last scan's increment as a fitting registration measured it (its frame), else
+        # None: what the scan stamps' delay is learned from (vmp.latency).
+        self.registered: FloatArray | None = None
 
     @property
     def scale(self) -> float:
@@ -90,6 +95,7 @@ class ScanOdometry:
         moves the robot, from a standstill guess that it is free to overrule).
         """
         c = self.config
+        self.registered = None
         if wheel is None:
             wheel = np.zeros(3)
             q_wheel = NO_ODOMETRY
@@ -113,12 +119,15 @@ class ScanOdometry:
         # A registration that disagrees with the wheels beyond a slip is not trusted:
         # something moved with the robot, or ICP fell into another minimum.
         fit = fits(reg, self.registration)
+        if fit:
+            self.registered = u_reg
         d2 = float(d @ np.linalg.solve(q_wheel + reg.covariance, d))
         if fit and q_wheel[0, 0] < 1.0:
             self._learn_noise(d2)
             self._learn_mount(wheel, u_reg, q_wheel + reg.covariance)
         q_slip = q_wheel * (self.tail_scale / self.noise_scale) + SLIP
-        if not fit or float(d @ np.linalg.solve(q_slip + reg.covariance, d)) > CHI2_3DOF_99:
+        if not fit or (not _sees_all(reg.covariance) and float(
+                d @ np.linalg.solve(q_slip + reg.covariance, d)) > CHI2_3DOF_99):
             self.fallbacks += 1
             # The scan's pose in the keyframe is now the wheels' guess, not a registration:
             # measured against it, the next scans would disagree by the wheels' error again
@@ -189,6 +198,13 @@ class ScanOdometry:
             self._rel = np.zeros(3)
         except ValueError:
             pass
+
+
+def _sees_all(cov: FloatArray) -> bool:
+    """Whether a registration's covariance pins every direction to :data:`SEES_XY` and
+    :data:`SEES_THETA`."""
+    return bool(math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0)) <= SEES_XY
+                and math.sqrt(cov[2, 2]) <= SEES_THETA)
 
 
 def _mount_matrix(turn: float) -> FloatArray:
