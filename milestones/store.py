@@ -11,6 +11,7 @@ import contextlib
 import json
 import os
 import tempfile
+import tokenize
 import zipfile
 import zlib
 from pathlib import Path
@@ -85,7 +86,8 @@ def load_milestones(path: str | os.PathLike[str]) -> MilestoneManager:
     except StoreError:
         raise
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error,
-            NotImplementedError, RuntimeError) as exc:  # RuntimeError: an encrypted member
+            NotImplementedError, RuntimeError,  # RuntimeError: an encrypted member
+            SyntaxError, tokenize.TokenError) as exc:  # a member's damaged .npy header
         raise StoreError(f"{path}: not a readable milestone file ({exc})") from exc
     if "header" not in contents:
         raise StoreError(f"{path}: not a milestone file (no header)")

@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import re
+import tokenize
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -104,7 +105,8 @@ def load_checkpoint(path: Path, keep: dict[str, object]) -> tuple[dict[str, Any]
     except InputError:
         raise
     except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile,
-            zlib.error, UnicodeDecodeError, StateError) as exc:
+            zlib.error, UnicodeDecodeError, StateError, SyntaxError,
+            tokenize.TokenError) as exc:  # the last two: a member's damaged .npy header
         raise InputError(f"{path}: a damaged checkpoint ({exc})") from exc
 
 

@@ -13,6 +13,7 @@ import hashlib
 import json
 import math
 import os
+import tokenize
 import zipfile
 import zlib
 from dataclasses import asdict, dataclass
@@ -197,7 +198,8 @@ def load_map(path: str | os.PathLike[str]) -> MapData:
     except InputError:
         raise
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError, zlib.error,
-            UnicodeDecodeError, NotImplementedError, RuntimeError) as exc:
+            UnicodeDecodeError, NotImplementedError, RuntimeError, SyntaxError,
+            tokenize.TokenError) as exc:  # the last two: a member's damaged .npy header
         raise InputError(f"{path}: not a readable vmp-slam map ({exc})") from exc
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise InputError(f"{path}: not a vmp-slam map file")
@@ -222,6 +224,7 @@ def load_map(path: str | os.PathLike[str]) -> MapData:
         for (i, j), z, info, kind in zip(a["edge_ij"], a["edge_z"], a["edge_info"],
                                          header["edge_kinds"], strict=True):
             graph.add_information(int(i), int(j), z, info, kind)
+        return MapData(vmap, milestones, graph, header["config"], a["stamps"], a["trajectory"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{path}: corrupt vmp-slam map ({exc})") from exc
-    return MapData(vmap, milestones, graph, header["config"], a["stamps"], a["trajectory"])
+        what = f"no entry {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise InputError(f"{path}: corrupt vmp-slam map ({what})") from exc
