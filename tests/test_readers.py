@@ -217,6 +217,27 @@ def test_rawlaser_scans_take_odometry_interpolated_from_odom_lines(tmp_path):
     assert [f.index for f in frames] == [0, 1, 2]
 
 
+def test_flaser_scans_that_copy_the_last_odom_line_are_read_at_their_stamp(tmp_path):
+    """ACES's logger writes into each scan the last ODOM line's pose, up to 0.19 s older than
+    the scan; such scans take the ODOM lines' pose at their own stamp. A scan whose pose lies
+    between the ODOM lines (fr079's logger interpolates) keeps it, and the order of the
+    scans holds."""
+    from drivers.carmen import CarmenLog
+
+    lines = ""
+    for k in range(6):  # ODOM at t = k, the robot 1 m/s along x; scans at k + 0.5
+        lines += _odom((k, 0, 0), float(k)) + _flaser((k, 0, 0), k + 0.5)
+    lines += _flaser((5.75, 0, 0), 5.8)  # between the ODOM lines: its own pose
+    lines += _odom((6, 0, 0), 6.0) + _flaser((6, 0, 0), 6.5)  # after the last ODOM: it holds
+    log = tmp_path / "stale.log"
+    log.write_text(lines)
+    frames = list(CarmenLog(log))
+    assert [f.stamp for f in frames] == [0.5, 1.5, 2.5, 3.5, 4.5, 5.5, 5.8, 6.5]
+    xs = [float(f.odom[0]) for f in frames]
+    # The first scans are read as written until the log is known not to be GMapping's.
+    np.testing.assert_allclose(xs[3:], [3.5, 4.5, 5.5, 5.75, 6.0])
+
+
 def test_reading_a_long_log_does_not_hold_it_in_memory(tmp_path):
     """Peak memory while iterating a log does not grow with its length (lines are streamed)."""
     import gzip

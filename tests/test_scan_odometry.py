@@ -70,24 +70,60 @@ def test_the_wheels_distance_scale_is_learned():
     assert abs(odo.scale - 1 / 1.05) < 0.01
 
 
-def test_after_one_wheel_slip_the_next_scans_are_registered_again():
-    """The wheels miss a 25 cm step (beyond the slip the gate allows: the step falls back to
-    them), then the robot stands. Measured against a keyframe the slip had put out of place,
-    every scan while it stood fell back too (fr079, the robot stopping); now only the one
-    does."""
+def test_wheels_that_miss_a_step_are_overruled_where_the_scans_see_everything():
+    """The wheels miss a 25 cm step (beyond any slip), then the robot stands. In a room the
+    registration pins every direction and the keyframe a metre back agrees with it, so it
+    overrules the wheels (on fr079 the wheels said ahead where the robot backed up); the
+    scans after it register against the right pose."""
     odo = odometry()
-    odo.increment(_room_scan(0.0), None)
-    x = 0.0
-    for _ in range(3):
+    x = -1.0
+    odo.increment(_room_scan(x), None)
+    for _ in range(10):
         x += 0.1
         odo.increment(_room_scan(x), np.array([0.1, 0.0, 0.0]))
     x += 0.25
-    odo.increment(_room_scan(x), np.array([0.0, 0.0, 0.0]))  # the slip
-    assert odo.fallbacks == 1
+    u, q = odo.increment(_room_scan(x), np.array([0.0, 0.0, 0.0]))  # the miss
+    assert odo.fallbacks == 0 and odo.overruled == 1
+    assert abs(u[0] - 0.25) < 0.01 and np.sqrt(q[0, 0]) < 0.02
     for _ in range(10):  # standing
         u, _ = odo.increment(_room_scan(x), np.zeros(3))
         assert np.hypot(u[0], u[1]) < 0.005
-    assert odo.fallbacks == 1 and odo.refined == 13
+    assert odo.fallbacks == 0 and odo.overruled == 1 and odo.refined == 21
+
+
+def test_a_registration_fooled_by_something_moving_along_does_not_overrule_the_wheels():
+    """A box 0.8 m ahead moves with the robot (the office scenario's walker): against the
+    last keyframe the scan fits standing still, every direction pinned, while the wheels
+    say 0.1 m a step. A metre back the room's walls outweigh the box: the wheels stand."""
+    def seen(x: float) -> np.ndarray:
+        room = _room_scan(x)
+        near = np.linalg.norm(room, axis=1) > 0  # every beam
+        a = np.arctan2(room[:, 1], room[:, 0])
+        box = np.abs(a) < 0.9  # the box fills the view ahead, 0.8 m away
+        pts = room.copy()
+        pts[box & near] = np.stack([np.full(box.sum(), 0.8), 0.8 * np.tan(a[box])], axis=-1)
+        return pts
+
+    odo = odometry()
+    x = -1.5
+    odo.increment(seen(x), None)
+    for _ in range(12):
+        x += 0.1
+        u, _ = odo.increment(seen(x), np.array([0.1, 0.0, 0.0]))
+    assert odo.overruled == 0
+    assert abs(u[0] - 0.1) < 0.02
+
+
+def test_along_a_corridor_a_registration_that_disagrees_falls_back_to_the_wheels():
+    """Where the registration leaves a direction free it cannot overrule the wheels: a
+    disagreement beyond the slip (something moving with the robot) falls back to them."""
+    odo = odometry()
+    odo.increment(_corridor_scan(0.0), None)
+    walls = _corridor_scan(0.0)
+    shifted = walls + np.array([0.0, 0.3])  # the walls seen 30 cm to one side: a wrong fit
+    u, _ = odo.increment(shifted, np.array([0.1, 0.0, 0.0]))
+    assert odo.fallbacks == 1 and odo.overruled == 0
+    np.testing.assert_allclose(u, [0.1, 0.0, 0.0])
 
 
 def test_a_slip_in_a_turn_goes_to_the_registration():

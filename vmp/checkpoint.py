@@ -32,7 +32,10 @@ __all__ = ["CHECKPOINT", "Every", "fingerprint", "load_checkpoint", "remove_chec
 
 CHECKPOINT = "checkpoint.npz"
 FORMAT = "vmp-slam checkpoint"
-VERSION = 1
+# The state's layout: raised whenever the mapper's objects gain or lose attributes, so that a
+# checkpoint of another layout is refused in one line (2: the odometry delay, the overruled
+# count, the graph's marginals solved when asked).
+VERSION = 2
 
 
 @dataclass(frozen=True)

@@ -11,8 +11,10 @@ the same odometry read 0.1 s earlier scores 0.44 deg (fr079: 1.90 -> 0.90 deg).
 registration measured between consecutive scans (which do not depend on the scanner's mount
 or the wheels' scale). Every :data:`FIT_EVERY` new increments it finds the delay that makes
 the odometry's heading increments, read that much earlier, agree best with the registered
-ones, among 0 to :data:`MAX_LATENCY` in steps of :data:`STEP`; a delay is used only when it
-explains the turns clearly better than none (:data:`GAIN`). Stamps that do not increase (the
+ones, among 0 to :data:`MAX_LATENCY` in steps of :data:`STEP` (each with the heading scale that
+fits it best, so that wheels turning a few per cent too far do not pass for a delay); a delay is
+used only when the samples turned enough to tell (:data:`MIN_TURNING`) and it explains the
+turns clearly better than none (:data:`GAIN`). Stamps that do not increase (the
 Intel recording's bursts, stamps running backwards) say nothing about time: the history starts
 again after one, so such a log keeps a delay of zero.
 """
@@ -38,7 +40,7 @@ MIN_STEP = 1e-3  # stamps closer than this (s) are not increasing: the history r
 # of no delay's: the wheels' own noise leaves some disagreement at every delay.
 GAIN = 0.8
 HUBER = np.radians(2.0)  # disagreements beyond this count linearly (rad)
-MIN_TURNING = np.radians(10.0)  # summed turns of the samples needed to fit at all (rad)
+MIN_TURNING = np.radians(180.0)  # summed turns of the samples needed to fit at all (rad)
 
 
 class Latency:
@@ -109,7 +111,11 @@ class Latency:
         delays = np.arange(0.0, MAX_LATENCY + STEP / 2, STEP)
         start = np.interp(s[:, 0, None] - delays[None, :], times, headings)
         end = np.interp(s[:, 1, None] - delays[None, :], times, headings)
-        miss = np.abs(s[:, 2, None] - (end - start))  # (samples, delays)
+        wheels = end - start  # (samples, delays): the odometry's turns, read that much earlier
+        # With its own heading scale at each delay: wheels that turn a few per cent too far
+        # or too little (a common calibration error) must not pass for a delay.
+        scale = (wheels * s[:, 2, None]).sum(axis=0) / np.maximum((wheels**2).sum(axis=0), 1e-12)
+        miss = np.abs(s[:, 2, None] - scale * wheels)
         cost = np.where(miss <= HUBER, 0.5 * miss**2, HUBER * (miss - 0.5 * HUBER)).mean(axis=0)
         best = int(np.argmin(cost))
         self.fits += 1

@@ -203,12 +203,7 @@ class Matcher:
             reason = Reason.POOR_FIT
         elif kind is Kind.SIGNATURE and ratio > c.matching.max_ratio:
             reason = Reason.AMBIGUOUS
-        elif d2 > CHI2_3DOF_99 and seed is not Seed.SEARCH:
-            # A find of the loop search lies inside the window the drift allows by
-            # construction; what the search verified (score, a clear peak, the refinement)
-            # and a second find agreeing with it (vmp.backend) decide, not this gate: the
-            # drift compounded along the path is optimistic (fr079, scans 1280-1300: finds
-            # 0.8 m off the prediction, right by the relations, at d2 = 27).
+        elif d2 > CHI2_3DOF_99:
             reason = Reason.GATE
         return Match(mid, kind, reg, z, R, d2, ratio, score, reason, seed)
 

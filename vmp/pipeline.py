@@ -250,6 +250,11 @@ class Pipeline:
         s["milestones"] = len(self.milestones)
         s["segments"] = len(self.map.segment_anchor)
         s["bytes per scan"] = self.map.bytes_per_scan
+        odo = self.front.scan_odometry
+        s["scan odometry: refined increments"] = odo.refined
+        s["scan odometry: fell back to the wheels"] = odo.fallbacks
+        s["scan odometry: wheels overruled"] = odo.overruled
+        s["odometry delay learned (s)"] = self.front.latency.latency
         graph = self.back.graph
         loops = np.array([e.kind == "loop" for e in graph.edges], dtype=bool)
         s["loop edges in the graph"] = int(loops.sum())
