@@ -67,3 +67,12 @@ def test_the_odometry_at_the_time_the_scan_was_taken():
     assert got[2] == pytest.approx(float(wrap_angle(3.0 + 0.75 * (2 * math.pi - 6.0))))
     lat.latency = 0.3  # before the history
     assert lat.at(1.2) is None
+
+
+def test_turns_without_odometry_fit_nothing():
+    """A source without odometry (a live scanner with no pose feed) still registers its scans:
+    the turns alone say nothing about a delay."""
+    lat = Latency()
+    for k in range(200):
+        lat.registered(0.1 * k, 0.1 * (k + 1), 0.05)
+    assert lat.latency == 0.0 and lat.fits == 0

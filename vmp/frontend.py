@@ -71,7 +71,7 @@ class FrontEnd:
             self.filter.predict(u, q)
             self.motion_since_fix = self.motion_since_fix + rotate_covariance(
                 q, self.filter.pose[2])
-            if self.scan_odometry.registered is not None:
+            if wheel is not None and self.scan_odometry.registered is not None:
                 self.latency.registered(self._last_stamp, frame.stamp,
                                         float(self.scan_odometry.registered[2]))
         self._last_odom = odom

@@ -100,6 +100,8 @@ class Latency:
             self._fit()
 
     def _fit(self) -> None:
+        if len(self._stamps) < 2:  # no odometry to read
+            return
         times = np.fromiter(self._stamps, np.float64, len(self._stamps))
         headings = np.fromiter(self._headings, np.float64, len(self._headings))
         s = np.array(self._samples)
