@@ -79,9 +79,9 @@ def _wait_for(path_glob: Path, pattern: str, proc: subprocess.Popen, limit: floa
         if found:
             return found[0]
         if proc.poll() is not None:
-            pytest.fail(f"the run ended (code {proc.returncode}) before writing a checkpoint")
+            pytest.fail(f"the run ended (code {proc.returncode}) before {pattern} appeared")
         time.sleep(0.05)
-    pytest.fail("no checkpoint within the time limit")
+    pytest.fail(f"no {pattern} within the time limit")
 
 
 def test_sigkill_then_resume_gives_the_uninterrupted_runs_trajectory(tmp_path, capsys):
@@ -128,3 +128,35 @@ def test_a_second_session_resumed_from_its_checkpoint_ends_as_the_uninterrupted_
     np.testing.assert_array_equal(resumed.stamps, whole.stamps)
     assert resumed.pipeline.stats["scans before localized in the saved map"] == \
         whole.pipeline.stats["scans before localized in the saved map"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_at_a_random_moment_leaves_a_complete_folder_with_a_loadable_map(
+        tmp_path, signum, code):
+    """``vmp map`` as its own process, signalled somewhere in its mapping: it finishes what
+    it mapped, writes every file, says so and exits 128 + the signal."""
+    from vmp.mapfile import load_map
+
+    delay = float(np.random.default_rng(int(signum)).uniform(0.3, 2.5))
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "vmp", "map", "office", "--scans", "2000",
+                             "--out", str(tmp_path), "-q"], env=env, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        _wait_for(tmp_path, "*/INCOMPLETE", proc, 120)
+        time.sleep(delay)
+        assert proc.poll() is None, "the run ended before the signal: give it more scans"
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == code, err
+    assert "interrupted" in err
+    folder = (tmp_path / "latest").resolve()
+    assert not (folder / "INCOMPLETE").exists()
+    saved = load_map(folder / "map.vmpmap")
+    mapped = len(np.loadtxt(folder / "trajectory.tum"))
+    assert 0 < mapped < 2000
+    assert len(saved.map) == mapped
