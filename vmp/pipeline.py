@@ -102,7 +102,8 @@ class Pipeline:
         doubt = Doubt(self.front.motion_since_fix, self.back.cov_via_anchor(x),
                       self.back.milestone_cov)
         scan = len(self.map)
-        matches = self.matcher.match(frame, x, P, self.back.anchor, doubt)
+        matches = self.matcher.match(frame, x, P, self.back.anchor, doubt,
+                                     self.back.closed_from_anchor())
         if self.loops.due(self.back.anchor):
             seen = {m.milestone for m in matches}
             finds = self.loops.search(frame, x, self.back.anchor, self.back.linked(), scan,

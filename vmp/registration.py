@@ -98,6 +98,8 @@ class Reference:
         # no neighbour within the gate (the number of points): one gather finds the matches.
         self.line_of = np.append(self.valid, False)
         self.corner_of = np.append(self.corner, False)
+        # Normal and point of each row side by side: one gather per ICP iteration.
+        self.lines = np.concatenate([self.normals, pts], axis=1)
 
 
 def fits(reg: Registration, config: RegistrationConfig) -> bool:
@@ -132,32 +134,27 @@ def _icp(reference: Reference, pts: FloatArray, initial: FloatArray,
     rms = np.inf
     inliers = 0.0
     wsum = 0.0
-    px, py = pts[:, 0], pts[:, 1]
     for it in range(1, MAX_ITERATIONS + 1):  # noqa: B007 - a few iterations, each vectorised
         cth, sth = math.cos(th), math.sin(th)
-        q = np.empty_like(pts)
-        q[:, 0] = x + cth * px - sth * py
-        q[:, 1] = y + sth * px + cth * py
+        q = pts @ np.array([[cth, sth], [-sth, cth]])
+        q += (x, y)
         _, idx = reference.tree.query(q, distance_upper_bound=gate)
         line = reference.line_of[idx]
         corner = reference.corner_of[idx] if corners else None
-        n_matched = int(np.count_nonzero(line))
+        im = idx[line]
+        n_matched = len(im)
         if corners:
             n_matched += int(np.count_nonzero(corner))
         if n_matched < 6:
             break
         # Point to line: one residual along the reference normal per matched point.
         qm = q[line]
-        im = idx[line]
-        n = reference.normals[im]
-        d = qm - reference.points[im]
-        e = n[:, 0] * d[:, 0] + n[:, 1] * d[:, 1]
-        a = np.abs(e)
-        w = np.where(a <= HUBER, 1.0, HUBER / np.maximum(a, 1e-12))
+        ref = reference.lines[im]  # (K, 4): normal, point
+        e = ((qm - ref[:, 2:]) * ref[:, :2]).sum(axis=1)
+        w = np.minimum(1.0, HUBER / np.maximum(np.abs(e), 1e-12))  # Huber
         J = np.empty((len(e), 3))
-        J[:, 0] = n[:, 0]
-        J[:, 1] = n[:, 1]
-        J[:, 2] = n[:, 1] * qm[:, 0] - n[:, 0] * qm[:, 1]
+        J[:, :2] = ref[:, :2]
+        J[:, 2] = ref[:, 1] * qm[:, 0] - ref[:, 0] * qm[:, 1]
         if corners and corner.any():
             # Point to point: two residuals (x, y) per corner point, Huber on their length.
             qc = q[corner]
