@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from vmp.saturation import no_echo_level
 from vmp.types import (
     BeamGeometry,
     FloatArray,
@@ -258,19 +259,38 @@ class VectorMap:
         total = total + hop
         return np.where(total[seg] > 0, cum / np.where(total[seg] > 0, total[seg], 1.0), 0.0)
 
+    def no_echo(self) -> NDArray[np.bool_]:
+        """``(S, N)``: hits at the reading the scanner writes for "no echo", where the data show
+        one (:mod:`vmp.saturation`). The views below draw them as beams without a return;
+        registration and the loop search see the stored scans as they are."""
+        hits = self.hits
+        ranges = np.hypot(self.end_points[..., 0], self.end_points[..., 1])
+        level = no_echo_level(np.where(hits, ranges, np.inf))
+        if level is None:
+            return np.zeros_like(hits)
+        return hits & (ranges >= level)
+
     def world_points(self, poses: FloatArray, hits_only: bool = True) -> FloatArray:
-        """End points in the map frame: ``(K, 2)`` of the hits, or ``(S, N, 2)`` of all."""
+        """End points in the map frame: ``(K, 2)`` of the hits (less "no echo" readings), or
+        ``(S, N, 2)`` of all, as stored."""
         pts = transform_points(poses, self.end_points.astype(np.float64))
         if hits_only:
-            return pts[self.hits]
+            return pts[self.hits & ~self.no_echo()]
         return pts
 
     def polygons(self, poses: FloatArray) -> FloatArray:
         """Scan polygons ``(S, V, 2)`` in the map frame: origin then end points in angle order.
 
-        A full-circle scan's polygon is its end points alone (the origin lies inside).
+        A beam whose reading is "no echo" (:meth:`no_echo`) reaches as far as one without a
+        return. A full-circle scan's polygon is its end points alone (the origin lies inside).
         """
-        pts = self.world_points(poses, hits_only=False)
+        local = self.end_points.astype(np.float64)
+        silent = self.no_echo()
+        if silent.any():
+            reach = max(self.free_range, 0.02)
+            scale = reach / np.maximum(np.hypot(local[..., 0], local[..., 1]), 1e-9)
+            local = np.where(silent[..., None], local * scale[..., None], local)
+        pts = transform_points(poses, local)
         if self.geometry.angle_increment < 0:
             pts = pts[:, ::-1]
         if self.geometry.full_circle:
