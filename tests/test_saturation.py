@@ -58,7 +58,13 @@ def test_no_echo_beams_are_drawn_as_beams_without_a_return():
     assert silent.sum() == np.count_nonzero(scans == 50.0)
     poses = vm.world_poses(np.zeros((1, 3)))
     reach = np.hypot(*vm.polygons(poses)[:, 1:].transpose(2, 0, 1))
-    np.testing.assert_allclose(reach[silent], 10.0, atol=1e-4)  # as far as no return
+    # As far as a beam without a return: the no-return reach, or the farther hit beside it.
+    for k, j in zip(*np.nonzero(silent), strict=True):
+        seen = np.isfinite(scans[k]) & ~silent[k]
+        left = scans[k][:j][seen[:j]][-1:] if seen[:j].any() else np.array([])
+        right = scans[k][j + 1:][seen[j + 1:]][:1] if seen[j + 1:].any() else np.array([])
+        beside = np.concatenate([left, right]).max()
+        assert abs(reach[k, j] - min(10.0, beside)) < 1e-4
     assert reach[~silent].max() <= 45.0 + 1e-3
     assert np.hypot(*vm.world_points(poses).T).max() <= 45.0 + 1e-3  # not an obstacle
     # What is stored, and what registration sees, stays the reading.

@@ -29,15 +29,18 @@ def test_a_scan_may_mark_no_free_space_along_beams_without_a_return():
     vm.new_segment(0)
     r = np.full(181, 2.0)
     r[60:120] = np.inf
+    r[59], r[120] = 3.0, 2.5  # the frame of a window: what the scanner saw beside the gap
     vm.insert(r, np.zeros(3))
     vm.insert(r, np.zeros(3), free_range=0.0)  # a sensor whose no-return may be an error
+    vm.insert(np.full(181, np.inf), np.zeros(3))  # nothing within range anywhere
     polys = vm.polygons(vm.world_poses(np.zeros((1, 3))))
     reach = np.hypot(polys[..., 0], polys[..., 1])
     beams = slice(61, 121)  # vertex 0 is the scanner
-    assert np.allclose(reach[0, beams], SICK.max_range, atol=1e-5)
+    assert np.allclose(reach[0, beams], 3.0, atol=1e-5)  # as far as the frame, not beyond
     assert np.allclose(reach[1, beams], 0.02, atol=1e-5)  # a 2 cm fan keeps it valid
+    assert np.allclose(reach[2, 1:], SICK.max_range, atol=1e-5)
     areas = shapely.area(shapely.polygons(polys))
-    assert areas[1] < areas[0] and shapely.is_valid(shapely.polygons(polys)).all()
+    assert areas[1] < areas[0] < areas[2] and shapely.is_valid(shapely.polygons(polys)).all()
 
 
 def test_full_circle_scans_make_valid_polygons_without_the_origin():

@@ -281,15 +281,20 @@ class VectorMap:
     def polygons(self, poses: FloatArray) -> FloatArray:
         """Scan polygons ``(S, V, 2)`` in the map frame: origin then end points in angle order.
 
-        A beam whose reading is "no echo" (:meth:`no_echo`) reaches as far as one without a
-        return. A full-circle scan's polygon is its end points alone (the origin lies inside).
+        A beam without a return (or with a "no echo" reading, :meth:`no_echo`) marks free
+        space as far as it was stored to reach, but no farther than the farther of the hits
+        on either side of it in its scan: through a window or an open door the scanner saw
+        the frame, not what lies beyond (fr079's and the Intel lab's windows had put 10 m of
+        free space all round the building). A scan without a hit keeps its reach. A
+        full-circle scan's polygon is its end points alone (the origin lies inside).
         """
         local = self.end_points.astype(np.float64)
+        ranges = np.hypot(local[..., 0], local[..., 1])
         silent = self.no_echo()
-        if silent.any():
-            reach = max(self.free_range, 0.02)
-            scale = reach / np.maximum(np.hypot(local[..., 0], local[..., 1]), 1e-9)
-            local = np.where(silent[..., None], local * scale[..., None], local)
+        hits = self.hits & ~silent
+        reach = np.where(silent, max(self.free_range, 0.02), ranges)
+        reach = np.where(hits, ranges, np.minimum(reach, _beside(ranges, hits, reach)))
+        local = local * (reach / np.maximum(ranges, 1e-9))[..., None]
         pts = transform_points(poses, local)
         if self.geometry.angle_increment < 0:
             pts = pts[:, ::-1]
@@ -303,3 +308,23 @@ class VectorMap:
         per = (self._points.a.itemsize * self._points.a[0].size
                + self._hits.a[0].size + 3 * 8 + 4 + 8)
         return float(per)
+
+
+def _beside(ranges: FloatArray, hits: NDArray[np.bool_], otherwise: FloatArray,
+            block: int = 4096) -> FloatArray:
+    """``(S, N)``: per beam, the larger range of the nearest hits before and after it in its
+    scan, or ``otherwise`` where the scan has no hit on either side (``block`` scans at a
+    time: a few arrays of that many scans, not of all of them)."""
+    out = np.empty_like(ranges)
+    n = ranges.shape[1]
+    beam = np.arange(n, dtype=np.int32)
+    for k in range(0, len(ranges), block):
+        r, h = ranges[k:k + block], hits[k:k + block]
+        before = np.maximum.accumulate(np.where(h, beam, -1), axis=1)
+        after = np.minimum.accumulate(np.where(h, beam, n)[:, ::-1], axis=1)[:, ::-1]
+        near = np.where(before >= 0, np.take_along_axis(r, np.maximum(before, 0), axis=1),
+                        -np.inf)
+        np.maximum(near, np.where(after < n, np.take_along_axis(r, np.minimum(after, n - 1),
+                                                                axis=1), -np.inf), out=near)
+        out[k:k + block] = np.where(np.isfinite(near), near, otherwise[k:k + block])
+    return out
