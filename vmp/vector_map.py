@@ -29,6 +29,8 @@ from vmp.types import (
 
 __all__ = ["VectorMap"]
 
+BLOCK = 4096  # scans drawn at a time (bounds the temporaries of the views)
+
 
 class _Grow:
     """A contiguous array that grows by doubling along its first axis."""
@@ -264,11 +266,14 @@ class VectorMap:
         one (:mod:`vmp.saturation`). The views below draw them as beams without a return;
         registration and the loop search see the stored scans as they are."""
         hits = self.hits
-        ranges = np.hypot(self.end_points[..., 0], self.end_points[..., 1])
-        level = no_echo_level(np.where(hits, ranges, np.inf))
+        level = self._no_echo_level(hits)
         if level is None:
             return np.zeros_like(hits)
-        return hits & (ranges >= level)
+        return hits & (np.hypot(self.end_points[..., 0], self.end_points[..., 1]) >= level)
+
+    def _no_echo_level(self, hits: NDArray[np.bool_]) -> float | None:
+        ranges = np.hypot(self.end_points[..., 0], self.end_points[..., 1])
+        return no_echo_level(np.where(hits, ranges, np.inf))
 
     def world_points(self, poses: FloatArray, hits_only: bool = True) -> FloatArray:
         """End points in the map frame: ``(K, 2)`` of the hits (less "no echo" readings), or
@@ -286,21 +291,32 @@ class VectorMap:
         on either side of it in its scan: through a window or an open door the scanner saw
         the frame, not what lies beyond (fr079's and the Intel lab's windows had put 10 m of
         free space all round the building). A scan without a hit keeps its reach. A
-        full-circle scan's polygon is its end points alone (the origin lies inside).
+        full-circle scan's polygon is its end points alone (the origin lies inside). Worked
+        out :data:`BLOCK` scans at a time, so that only the result is of the whole map's size.
         """
-        local = self.end_points.astype(np.float64)
-        ranges = np.hypot(local[..., 0], local[..., 1])
-        silent = self.no_echo()
-        hits = self.hits & ~silent
-        reach = np.where(silent, max(self.free_range, 0.02), ranges)
-        reach = np.where(hits, ranges, np.minimum(reach, _beside(ranges, hits, reach)))
-        local = local * (reach / np.maximum(ranges, 1e-9))[..., None]
-        pts = transform_points(poses, local)
-        if self.geometry.angle_increment < 0:
-            pts = pts[:, ::-1]
-        if self.geometry.full_circle:
-            return pts
-        return np.concatenate([poses[:, None, :2], pts], axis=1)
+        poses = np.asarray(poses, dtype=np.float64)
+        level = self._no_echo_level(self.hits)
+        full = self.geometry.full_circle
+        n = self.geometry.num_beams
+        out = np.empty((len(self), n if full else n + 1, 2))
+        for k in range(0, len(self), BLOCK):
+            local = self.end_points[k:k + BLOCK].astype(np.float64)
+            ranges = np.hypot(local[..., 0], local[..., 1])
+            hits = np.unpackbits(self._hits.view[k:k + BLOCK], axis=1, count=n).astype(bool)
+            silent = hits & (ranges >= level) if level is not None else np.zeros_like(hits)
+            hits &= ~silent
+            reach = np.where(silent, max(self.free_range, 0.02), ranges)
+            reach = np.where(hits, ranges, np.minimum(reach, _beside(ranges, hits, reach)))
+            local *= (reach / np.maximum(ranges, 1e-9))[..., None]
+            pts = transform_points(poses[k:k + BLOCK], local)
+            if self.geometry.angle_increment < 0:
+                pts = pts[:, ::-1]
+            if full:
+                out[k:k + BLOCK] = pts
+            else:
+                out[k:k + BLOCK, 0] = poses[k:k + BLOCK, :2]
+                out[k:k + BLOCK, 1:] = pts
+        return out
 
     @property
     def bytes_per_scan(self) -> float:
@@ -310,21 +326,15 @@ class VectorMap:
         return float(per)
 
 
-def _beside(ranges: FloatArray, hits: NDArray[np.bool_], otherwise: FloatArray,
-            block: int = 4096) -> FloatArray:
+def _beside(ranges: FloatArray, hits: NDArray[np.bool_], otherwise: FloatArray) -> FloatArray:
     """``(S, N)``: per beam, the larger range of the nearest hits before and after it in its
-    scan, or ``otherwise`` where the scan has no hit on either side (``block`` scans at a
-    time: a few arrays of that many scans, not of all of them)."""
-    out = np.empty_like(ranges)
+    scan, or ``otherwise`` where the scan has no hit on either side."""
     n = ranges.shape[1]
     beam = np.arange(n, dtype=np.int32)
-    for k in range(0, len(ranges), block):
-        r, h = ranges[k:k + block], hits[k:k + block]
-        before = np.maximum.accumulate(np.where(h, beam, -1), axis=1)
-        after = np.minimum.accumulate(np.where(h, beam, n)[:, ::-1], axis=1)[:, ::-1]
-        near = np.where(before >= 0, np.take_along_axis(r, np.maximum(before, 0), axis=1),
-                        -np.inf)
-        np.maximum(near, np.where(after < n, np.take_along_axis(r, np.minimum(after, n - 1),
-                                                                axis=1), -np.inf), out=near)
-        out[k:k + block] = np.where(np.isfinite(near), near, otherwise[k:k + block])
-    return out
+    before = np.maximum.accumulate(np.where(hits, beam, -1), axis=1)
+    after = np.minimum.accumulate(np.where(hits, beam, n)[:, ::-1], axis=1)[:, ::-1]
+    near = np.where(before >= 0, np.take_along_axis(ranges, np.maximum(before, 0), axis=1),
+                    -np.inf)
+    np.maximum(near, np.where(after < n, np.take_along_axis(ranges, np.minimum(after, n - 1),
+                                                            axis=1), -np.inf), out=near)
+    return np.where(np.isfinite(near), near, otherwise)
