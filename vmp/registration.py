@@ -98,8 +98,11 @@ class Reference:
         # no neighbour within the gate (the number of points): one gather finds the matches.
         self.line_of = np.append(self.valid, False)
         self.corner_of = np.append(self.corner, False)
-        # Normal and point of each row side by side: one gather per ICP iteration.
+        # Normal and point of each row side by side: one gather per ICP iteration. The
+        # normals and points are views into it (a loop search's cached submaps hold tens of
+        # thousands of points each: one copy, not two).
         self.lines = np.concatenate([self.normals, pts], axis=1)
+        self.normals, self.points = self.lines[:, :2], self.lines[:, 2:]
 
 
 def fits(reg: Registration, config: RegistrationConfig) -> bool:
