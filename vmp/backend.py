@@ -93,7 +93,8 @@ class BackEnd:
         # Per milestone: its covariance in the map frame; None where the graph's marginals
         # hold it (solved when first asked for, see milestone_cov).
         self._abs_cov: list[FloatArray | None] = []
-        self._closed: set[tuple[int, int]] = set()  # loops closed without a handover
+        # Per anchor, the milestones it closed a loop to without a handover.
+        self._closed: dict[int, set[int]] = {}
         self._neighbours: dict[int, set[int]] = {}  # milestone -> the ones edges join it to
         # A loop the search found, waiting for a second to agree: (anchor, milestone, z,
         # covariance, correction of the map frame).
@@ -131,7 +132,7 @@ class BackEnd:
     def closed_from_anchor(self) -> set[int]:
         """The milestones the anchor has closed a loop to in place (see
         :meth:`close_in_place`): a new match on one of them changes nothing."""
-        return {j for i, j in self._closed if i == self.anchor}
+        return self._closed.get(self.anchor, set())
 
     def milestone_cov(self, mid: int) -> FloatArray:
         """A milestone's covariance in the map frame."""
@@ -259,11 +260,11 @@ class BackEnd:
             if (not m.accepted or m.kind is not Kind.SIGNATURE
                     or (m.seed is Seed.PREDICTION and m.ratio > c.matching.retry_max_ratio)
                     or abs(m.milestone - self.anchor) <= c.loops.separation
-                    or (self.anchor, m.milestone) in self._closed
+                    or m.milestone in self._closed.get(self.anchor, ())
                     or not pins(m.registration)):
                 continue
             z, cov = self.handover_edge(m, pose)
-            self._closed.add((self.anchor, m.milestone))
+            self._closed.setdefault(self.anchor, set()).add(m.milestone)
             if m.seed is Seed.SEARCH and not self._confirmed(m, pose, z, cov):
                 continue
             edge = self._add_edge(self.anchor, m.milestone, z, cov, "loop")

@@ -39,7 +39,7 @@ def no_echo_level(ranges: FloatArray) -> float | None:
     level = top - TOLERANCE
     at = int(np.count_nonzero(values >= level))
     below = int(np.count_nonzero((values >= top - BELOW) & (values < level)))
-    beams = int(np.count_nonzero((hit & (np.where(hit, r, 0.0) >= level)).any(axis=0)))
+    beams = int(np.count_nonzero((hit & (r >= level)).any(axis=0)))
     if (max(MIN_COUNT, MIN_SHARE * len(values)) <= at <= 0.5 * len(values)
             and at >= MIN_RATIO * below
             and beams >= max(5, MIN_BEAMS * r.shape[1])):

@@ -266,22 +266,15 @@ class VectorMap:
         one (:mod:`vmp.saturation`). The views below draw them as beams without a return;
         registration and the loop search see the stored scans as they are."""
         hits = self.hits
-        level = self._no_echo_level(hits)
-        if level is None:
-            return np.zeros_like(hits)
-        return hits & (np.hypot(self.end_points[..., 0], self.end_points[..., 1]) >= level)
-
-    def _no_echo_level(self, hits: NDArray[np.bool_]) -> float | None:
         ranges = np.hypot(self.end_points[..., 0], self.end_points[..., 1])
-        return no_echo_level(np.where(hits, ranges, np.inf))
+        level = no_echo_level(np.where(hits, ranges, np.inf))
+        return hits & (ranges >= level) if level is not None else np.zeros_like(hits)
 
-    def world_points(self, poses: FloatArray, hits_only: bool = True) -> FloatArray:
-        """End points in the map frame: ``(K, 2)`` of the hits (less "no echo" readings), or
-        ``(S, N, 2)`` of all, as stored."""
-        pts = transform_points(poses, self.end_points.astype(np.float64))
-        if hits_only:
-            return pts[self.hits & ~self.no_echo()]
-        return pts
+    def world_points(self, poses: FloatArray) -> FloatArray:
+        """Hit points ``(K, 2)`` in the map frame, less "no echo" readings."""
+        keep = self.no_echo()
+        np.logical_xor(self.hits, keep, out=keep)  # the hits that are not "no echo"
+        return transform_points(poses, self.end_points.astype(np.float64))[keep]
 
     def polygons(self, poses: FloatArray) -> FloatArray:
         """Scan polygons ``(S, V, 2)`` in the map frame: origin then end points in angle order.
@@ -295,7 +288,7 @@ class VectorMap:
         out :data:`BLOCK` scans at a time, so that only the result is of the whole map's size.
         """
         poses = np.asarray(poses, dtype=np.float64)
-        level = self._no_echo_level(self.hits)
+        silent_all = self.no_echo()
         full = self.geometry.full_circle
         n = self.geometry.num_beams
         out = np.empty((len(self), n if full else n + 1, 2))
@@ -303,7 +296,7 @@ class VectorMap:
             local = self.end_points[k:k + BLOCK].astype(np.float64)
             ranges = np.hypot(local[..., 0], local[..., 1])
             hits = np.unpackbits(self._hits.view[k:k + BLOCK], axis=1, count=n).astype(bool)
-            silent = hits & (ranges >= level) if level is not None else np.zeros_like(hits)
+            silent = silent_all[k:k + BLOCK]
             hits &= ~silent
             reach = np.where(silent, max(self.free_range, 0.02), ranges)
             reach = np.where(hits, ranges, np.minimum(reach, _beside(ranges, hits, reach)))
