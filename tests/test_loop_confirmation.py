@@ -43,14 +43,31 @@ def _loops(back: BackEnd) -> list[tuple[int, int]]:
 
 def test_two_finds_that_agree_close_both_loops():
     back = _backend(30)
+    back.anchor = 28
     pose = np.array([20.0, 1.0, 0.2])
     assert back.close_in_place([_find(2, pose, [0.5, -0.3, 0.05])], pose) is None
     assert _loops(back) == []  # one find is a guess
-    back.anchor = 29
+    back.anchor = 29  # the next milestone's search
     pose = compose(pose, np.array([1.0, 0.0, 0.0]))
     edge = back.close_in_place([_find(3, pose, [0.52, -0.31, 0.05])], pose)
     assert edge is not None
-    assert _loops(back) == [(29, 2), (29, 3)]  # the earlier find (anchor 29 here) joins too
+    assert _loops(back) == [(28, 2), (29, 3)]  # the earlier find joins too
+
+
+def test_two_finds_of_one_search_do_not_confirm_each_other():
+    # One scan in two submaps that share most of their segments is one look, however well
+    # the two agree; the next search's find is the second look.
+    back = _backend(30)
+    back.anchor = 28
+    pose = np.array([20.0, 1.0, 0.2])
+    same_search = [_find(2, pose, [0.5, -0.3, 0.05]), _find(3, pose, [0.5, -0.3, 0.05])]
+    assert back.close_in_place(same_search, pose) is None
+    assert _loops(back) == []
+    assert back.stats["loop finds awaiting confirmation"] == 2
+    back.anchor = 29
+    pose = compose(pose, np.array([1.0, 0.0, 0.0]))
+    assert back.close_in_place([_find(4, pose, [0.51, -0.3, 0.05])], pose) is not None
+    assert _loops(back) == [(28, 2), (29, 4)]
 
 
 def test_finds_that_disagree_close_nothing():

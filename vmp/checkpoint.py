@@ -34,8 +34,9 @@ CHECKPOINT = "checkpoint.npz"
 FORMAT = "vmp-slam checkpoint"
 # The state's layout: raised whenever the mapper's objects gain or lose attributes, so that a
 # checkpoint of another layout is refused in one line (2: the odometry delay, the overruled
-# count, the graph's marginals solved when asked; 3: a registration reference's line table).
-VERSION = 3
+# count, the graph's marginals solved when asked; 3: a registration reference's line table;
+# 4: the back end's record edges, looked up for the drift along the path).
+VERSION = 4
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 At every new milestone the live scan is searched for in the submaps of stored milestones that could
 be where the robot is: those inside the window that the drift since them allows (a few sigma
-of the robot's and the milestone's covariances, capped), far enough back along the path. The
+of the drift between the milestone and the robot, capped), far enough back along the path. The
 milestones' signatures rank them (the paper's job for signatures: cheap identification), and
 the best few are searched by branch and bound (:mod:`vmp.branch_bound`) over the window, then
 refined by ICP against the submap's points. A find must score well, stand clear of the best
@@ -38,8 +38,13 @@ MAX_WINDOW_XY = 7.0  # ... and at most this (m)
 MIN_WINDOW_THETA = math.radians(10.0)
 MAX_WINDOW_THETA = math.radians(30.0)
 REACH = 3.0  # a milestone this far beyond the window may still share the view (m)
-NEIGHBOURS = 3  # a candidate's submap takes in the segments of this many milestones either way
-CANDIDATES = 2  # submaps searched per search, best signatures first
+# A candidate's submap takes in the segments of this many milestones either way. They are
+# placed by the graph as it stands, bends and all: with three either way, the Intel part's
+# finds on milestones 43-53 came out 4-5 degrees off, all alike, and confirmed each other.
+NEIGHBOURS = 2
+# Submaps searched per search, best signatures first: at ACES's two long returns the right
+# one is the third or fourth, and with two those loops stayed open (docs/benchmarks.md).
+CANDIDATES = 4
 RESOLUTION = 0.1  # search grid cell (m)
 SIGMA = 0.1  # likelihood fall-off (m)
 DEPTH = 5  # levels of block maxima: the coarsest blocks are 3.2 m

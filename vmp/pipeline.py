@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Callable
 
 import numpy as np
 
@@ -107,7 +108,7 @@ class Pipeline:
         if self.loops.due(self.back.anchor):
             seen = {m.milestone for m in matches}
             finds = self.loops.search(frame, x, self.back.anchor, self.back.linked(), scan,
-                                      lambda mid: P + doubt.via_anchor + doubt.milestone(mid))
+                                      self._drift(x, P, doubt))
             for find in finds:
                 if find.milestone not in seen:
                     # The search judged its own rivals (vmp.loops): a rival pose's score is
@@ -116,6 +117,28 @@ class Pipeline:
                                                       0.0, find.signature, x, P, doubt,
                                                       Seed.SEARCH))
         return matches
+
+    def _drift(self, x: FloatArray, P: FloatArray, doubt: Doubt
+               ) -> Callable[[int], FloatArray]:
+        """How far the robot at ``x`` may have drifted from a stored milestone: the drift
+        compounded along the path between them where the milestone lies on the path back from
+        the anchor and that is the narrower, else the sum of both map-frame covariances
+        (which hold all the drift since the start: a milestone ten seconds back would be
+        searched metres around, in the warehouse as far as the next aisle)."""
+        along: dict[int, FloatArray] = {}
+        asked = [math.inf]  # the oldest milestone the path has been followed back to
+
+        def drift(mid: int) -> FloatArray:
+            if mid < asked[0]:
+                along.update(self.back.drift_along_path(x, mid))
+                asked[0] = mid
+            summed = P + doubt.via_anchor + doubt.milestone(mid)
+            chain = along.get(mid)
+            if chain is None or _widest(chain) >= _widest(summed):
+                return summed
+            return chain
+
+        return drift
 
     def correct(self, matches: list[Match]) -> None:
         """Update the filter from the anchor match; re-localise on a stored milestone the robot
@@ -262,3 +285,8 @@ class Pipeline:
         if len(graph.weights) == len(loops):  # after an adjustment
             s["loop edges down-weighted"] = int((graph.weights[loops] < DOWN_WEIGHTED).sum())
         return s
+
+
+def _widest(cov: FloatArray) -> float:
+    """The largest variance of a pose covariance's position (m^2)."""
+    return float(np.linalg.eigvalsh(cov[:2, :2])[-1])
