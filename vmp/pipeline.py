@@ -126,12 +126,13 @@ class Pipeline:
         (which hold all the drift since the start: a milestone ten seconds back would be
         searched metres around, in the warehouse as far as the next aisle)."""
         along: dict[int, FloatArray] = {}
-        asked = [math.inf]  # the oldest milestone the path has been followed back to
+        followed_to = math.inf  # the oldest milestone the path has been followed back to
 
         def drift(mid: int) -> FloatArray:
-            if mid < asked[0]:
+            nonlocal followed_to
+            if mid < followed_to:
                 along.update(self.back.drift_along_path(x, mid))
-                asked[0] = mid
+                followed_to = mid
             summed = P + doubt.via_anchor + doubt.milestone(mid)
             chain = along.get(mid)
             if chain is None or _widest(chain) >= _widest(summed):
