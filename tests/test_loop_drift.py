@@ -62,3 +62,21 @@ def test_a_milestone_off_the_path_back_has_no_drift_along_it():
     drift = back.drift_along_path(back.milestones.pose(29), 25)
     assert 28 not in drift
     assert sorted(drift) == [25, 26, 27, 29]
+
+
+def test_the_drift_compounded_at_once_is_the_drift_compounded_edge_by_edge():
+    back = _chain(30, branch=True)
+    robot = compose(back.milestones.pose(29), np.array([0.7, -0.3, 0.4]))
+    drift = back.drift_along_path(robot, 0)
+    rel, cov = back.robot_in_anchor(robot)
+    node, by_hand = 29, {29: cov}
+    while node > 0:  # the path back: 29 was recorded from 27, the rest one after another
+        parent = 27 if node == 29 else node - 1
+        step = compose(STEP, STEP) if node == 29 else STEP
+        cov = compose_covariance(step, STEP_COV, rel, cov)
+        rel = compose(step, rel)
+        node = parent
+        by_hand[node] = cov
+    assert sorted(drift) == sorted(by_hand)
+    for mid, expected in by_hand.items():
+        np.testing.assert_allclose(drift[mid], expected, rtol=1e-6, atol=1e-12)

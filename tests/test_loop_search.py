@@ -41,7 +41,7 @@ def seen_from(points, pose, rng):
 
 def search_in(world, truth, guess, window):
     stats: Counter[str] = Counter()
-    loops = LoopSearch(MappingConfig(), None, lambda mid: ((0,), world), stats)
+    loops = LoopSearch(MappingConfig(), None, lambda mid: (0,), lambda mid: ((0,), world), stats)
     live = seen_from(world, truth, np.random.default_rng(4))
     thinned = live[np.linspace(0, len(live) - 1, 100).round().astype(int)]
     return loops._search_one(0, thinned, live, guess, window, math.radians(10)), stats

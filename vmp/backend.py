@@ -140,17 +140,43 @@ class BackEnd:
         back from the anchor, as far back as ``oldest``: the edges that recorded the milestones,
         compounded from there to the robot. This is the drift between the two, where the
         map-frame covariances of both hold everything since the start; a loop closed in
-        between would narrow it further."""
+        between would narrow it further.
+
+        Compounded all at once (to first order, as :func:`vmp.types.compose_covariance` one
+        edge at a time): in the anchor's frame each edge adds its covariance turned to its
+        frame and swung about its node by the heading's doubt (by the lever from the node to
+        the robot); the sums from the anchor back, turned into each milestone's frame, are
+        the answers. One edge at a time in Python took 2.97 s of fr079's 80 s."""
         parents = self._record_edges()
         rel, cov = self.robot_in_anchor(pose)
-        out = {self.anchor: cov}
+        chain, z, z_cov = [self.anchor], [], []
         node = self.anchor
-        while node > oldest and node in parents:  # one step a milestone, only back to oldest
-            parent, z, z_cov = parents[node]
-            cov = compose_covariance(z, z_cov, rel, cov)
-            rel = compose(z, rel)
+        while node > oldest and node in parents:  # pointers only: the sums are vectorised
+            parent, z_k, cov_k = parents[node]
+            chain.append(parent)
+            z.append(z_k)
+            z_cov.append(cov_k)
             node = parent
-            out[node] = cov
+        if not z:
+            return {self.anchor: cov}
+        z, z_cov = np.array(z), np.array(z_cov)
+        # Each milestone on the chain in the anchor's frame: heading phi, position p.
+        phi = np.concatenate([[0.0], -np.cumsum(z[:, 2])])
+        c, s = np.cos(phi[1:]), np.sin(phi[1:])
+        step = np.stack([c * z[:, 0] - s * z[:, 1], s * z[:, 0] + c * z[:, 1]], axis=1)
+        p = np.concatenate([np.zeros((1, 2)), -np.cumsum(step, axis=0)])
+        lever = rel[:2] - p[:-1]  # from each edge's child node to the robot
+        M = np.zeros((len(z), 3, 3))
+        M[:, 0, 0], M[:, 0, 1], M[:, 1, 0], M[:, 1, 1] = c, -s, s, c
+        M[:, 0, 2], M[:, 1, 2], M[:, 2, 2] = -lever[:, 1], lever[:, 0], 1.0
+        summed = cov + np.cumsum(np.einsum("kab,kbc,kdc->kad", M, z_cov, M), axis=0)
+        back = np.zeros((len(z), 3, 3))  # into each milestone's frame
+        back[:, 0, 0], back[:, 0, 1], back[:, 1, 0], back[:, 1, 1] = c, s, -s, c
+        back[:, 2, 2] = 1.0
+        turned = np.einsum("kab,kbc,kdc->kad", back, summed, back)
+        turned = 0.5 * (turned + np.transpose(turned, (0, 2, 1)))
+        out = {self.anchor: cov}
+        out.update(zip(chain[1:], turned, strict=True))
         return out
 
     def _record_edges(self) -> dict[int, tuple[int, FloatArray, FloatArray]]:

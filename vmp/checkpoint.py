@@ -35,8 +35,9 @@ FORMAT = "vmp-slam checkpoint"
 # The state's layout: raised whenever the mapper's objects gain or lose attributes, so that a
 # checkpoint of another layout is refused in one line (2: the odometry delay, the overruled
 # count, the graph's marginals solved when asked; 3: a registration reference's line table;
-# 4: the back end's record edges, looked up for the drift along the path).
-VERSION = 4
+# 4: the back end's record edges, looked up for the drift along the path; 5: the pose of the
+# last matched scan, and the loop search's look-up of a submap's segments).
+VERSION = 5
 
 
 @dataclass(frozen=True)

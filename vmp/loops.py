@@ -75,11 +75,15 @@ class LoopSearch:
     """Searches the live scan in the submaps of milestones it may have come back to."""
 
     def __init__(self, config: MappingConfig, milestones: MilestoneManager,
+                 submap_segments: Callable[[int], tuple[int, ...]],
                  submap_points: Callable[[int], tuple[tuple[int, ...], FloatArray] | None],
                  stats: Counter[str]) -> None:
         self.config = config
         self.milestones = milestones
-        self.submap_points = submap_points  # a milestone's segments and submap points
+        # A milestone's submap: its segments alone (cheap: a cached grid whose segments are
+        # unchanged is reused without its points gathered again), and with its points.
+        self.submap_segments = submap_segments
+        self.submap_points = submap_points
         self.stats = stats
         self._grids: OrderedDict[int, tuple[tuple[int, ...], SearchGrid, Reference]] = \
             OrderedDict()
@@ -144,14 +148,14 @@ class LoopSearch:
         return out
 
     def _grid(self, mid: int) -> tuple[SearchGrid, Reference] | None:
+        cached = self._grids.get(mid)
+        if cached is not None and cached[0] == self.submap_segments(mid):
+            self._grids.move_to_end(mid)
+            return cached[1], cached[2]
         held = self.submap_points(mid)
         if held is None:
             return None
         segments, pts = held
-        cached = self._grids.get(mid)
-        if cached is not None and cached[0] == segments:
-            self._grids.move_to_end(mid)
-            return cached[1], cached[2]
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= GRID_RADIUS]
         if len(pts) < 20:
             return None

@@ -67,6 +67,7 @@ class Result:
     mapping_time: float  # seconds of the run loop and the final adjustment
     interrupted: str | None = None  # the signal that ended the run early, if one did
     _grids: dict[float, Grid] = field(default_factory=dict, repr=False)
+    _polygons: FloatArray | None = field(default=None, repr=False)
 
     @property
     def scans(self) -> int:
@@ -77,11 +78,17 @@ class Result:
         """Every correction of the robot's pose: (scan index, kind, pose before, after)."""
         return self.pipeline.corrections
 
+    def polygons(self) -> FloatArray:
+        """The scan polygons of the assembled map (computed once)."""
+        if self._polygons is None:
+            self._polygons = self.pipeline.map.polygons(self.trajectory)
+        return self._polygons
+
     def grid(self, resolution: float = 0.05) -> Grid:
         """The occupancy grid of the assembled map (computed once per resolution)."""
         if resolution not in self._grids:
             vmap = self.pipeline.map
-            self._grids[resolution] = occupancy_grid(vmap.polygons(self.trajectory),
+            self._grids[resolution] = occupancy_grid(self.polygons(),
                                                      vmap.world_points(self.trajectory),
                                                      resolution)
         return self._grids[resolution]
@@ -141,7 +148,7 @@ def export_all(out: Path, result: Result, resolution: float, contours: bool = Tr
     with atomic_write(out / "grid.npy", "wb") as f:
         np.save(f, grid.cells, allow_pickle=False)
     if contours:
-        geom = free_space_contours(result.pipeline.map.polygons(result.trajectory))
+        geom = free_space_contours(result.polygons())
         write_geojson(out / "contours.geojson", geom,
                       {"what": "boundary of free space", "area_m2": round(geom.area, 3)})
     ms = result.pipeline.milestones

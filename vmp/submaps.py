@@ -36,6 +36,14 @@ class Submaps:
     def __init__(self, vmap: VectorMap) -> None:
         self.map = vmap
 
+    def segments_around(self, anchor: int, around: int) -> tuple[int, ...]:
+        """The segments of milestones ``anchor - around .. anchor + around`` (what
+        :meth:`neighbourhood` is made of: where they are unchanged, so is it, unless the
+        graph has moved its milestones)."""
+        vmap = self.map
+        ids = range(max(anchor - around, 0), anchor + around + 1)
+        return tuple(k for mid in ids for k in vmap.segments_of(mid))
+
     def neighbourhood(self, anchor: int, around: int, anchor_poses: FloatArray
                       ) -> tuple[tuple[int, ...], FloatArray] | None:
         """The segments of milestones ``anchor - around .. anchor + around`` and their hit
