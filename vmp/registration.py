@@ -16,9 +16,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vmp.config import RegistrationConfig
-from vmp.types import FloatArray
+from vmp.types import FloatArray, transform_points
 
-__all__ = ["MIN_POINTS", "Reference", "Registration", "fits", "register"]
+__all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "register"]
 
 
 MIN_POINTS = 20  # a scan with fewer returns is neither registered nor matched
@@ -109,6 +109,17 @@ def fits(reg: Registration, config: RegistrationConfig) -> bool:
     """Whether a registration fits well enough to be used: a close fit of most points."""
     return bool(np.isfinite(reg.rms) and reg.rms <= config.max_rms
                 and reg.inliers >= config.min_inliers)
+
+
+def explained(reference: Reference, points: FloatArray, pose: FloatArray,
+              distance: float) -> float:
+    """The share of ``points`` (their frame) placed at ``pose`` that lie within ``distance``
+    of a reference point, on a line or not."""
+    if len(points) == 0:
+        return 0.0
+    placed = transform_points(np.asarray(pose, dtype=np.float64), points)
+    dist, _ = reference.tree.query(placed, distance_upper_bound=distance)
+    return float(np.count_nonzero(np.isfinite(dist))) / len(points)
 
 
 def register(reference: Reference, points: FloatArray, initial: FloatArray,

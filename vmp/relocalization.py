@@ -20,7 +20,7 @@ import numpy as np
 from vmp.branch_bound import search, search_points
 from vmp.config import RegistrationConfig
 from vmp.places import Places
-from vmp.registration import MIN_POINTS, Registration, fits, register
+from vmp.registration import MIN_POINTS, Registration, register
 from vmp.types import FloatArray, ScanFrame, compose, relative
 
 __all__ = ["Proposal", "propose"]
@@ -78,7 +78,8 @@ def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
             continue
         reg = register(place.reference, points, best.pose)
         shift = relative(best.pose, reg.pose)
-        if (not fits(reg, registration) or math.hypot(shift[0], shift[1]) > MAX_SHIFT
+        if (not place.fits(reg, points, registration)
+                or math.hypot(shift[0], shift[1]) > MAX_SHIFT
                 or abs(shift[2]) > MAX_TURN):
             continue
         stats["places verified"] += 1

@@ -163,7 +163,7 @@ class MappingRun(StoppableRun):
         stamps, online, odometry = s["stamps"], s["online"], s["odometry"]
         localizer = (None if s["pipeline"] is not None else
                      Localizer(Places(self.saved.map, self.saved.milestones,
-                                      self.saved.trajectory), self.config, wheels=False))
+                                      self.saved.trajectory), self.config))
         started = time.perf_counter()
         saved_at = (started, len(stamps))  # when, and after how many scans, the last checkpoint
         frames = 0  # frames taken from the source

@@ -1,0 +1,92 @@
+"""Tracking in a saved map: a registration against a map assembled from many scans is judged by
+how much of the scan the map explains, and a place lost for a while resumes when it fits
+again, unless another explains the scans clearly better."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import replace
+
+import numpy as np
+
+from vmp.config import MappingConfig
+from vmp.fusion import PoseFilter
+from vmp.localizer import MIN_FITS, Hypothesis, Localizer, State
+from vmp.places import Place
+from vmp.registration import fits, register
+
+
+def _room(rng: np.random.Generator) -> np.ndarray:
+    """A 10 x 6 m room's walls as a map assembled from many scans: hits 2 cm about each wall,
+    densely, one point kept per 5 cm cell (a band two or three cells thick)."""
+    along = np.arange(0.0, 1.0, 0.002)
+    walls = [np.c_[10 * along, 0 * along], np.c_[10 * along, 0 * along + 6],
+             np.c_[0 * along, 6 * along], np.c_[0 * along + 10, 6 * along]]
+    pts = np.vstack(walls)
+    pts = pts + rng.normal(0.0, 0.02, pts.shape)
+    return np.unique(np.round(pts / 0.05), axis=0) * 0.05
+
+
+def _scan(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Points of the room's walls seen from ``pose``, in its frame, 1 cm noise."""
+    along = np.linspace(0.0, 1.0, 120)
+    walls = np.vstack([np.c_[10 * along, 0 * along], np.c_[10 * along, 0 * along + 6],
+                       np.c_[0 * along, 6 * along], np.c_[0 * along + 10, 6 * along]])
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    local = (walls - pose[:2]) @ np.array([[c, -s], [s, c]])
+    return local + rng.normal(0.0, 0.01, local.shape)
+
+
+def test_a_scan_placed_well_in_a_thick_walled_map_fits_and_one_placed_wrong_does_not():
+    rng = np.random.default_rng(3)
+    place = Place(0, np.zeros(3), _room(rng))
+    robot = np.array([4.0, 2.5, 0.3])
+    scan = _scan(robot, rng)
+    reg = register(place.reference, scan, robot + [0.05, -0.03, 0.01])
+    config = MappingConfig().registration
+    assert np.hypot(*(reg.pose[:2] - robot[:2])) < 0.01
+    assert not fits(reg, config)  # ICP found partners on a clear line for a quarter of it
+    assert place.fits(reg, scan, config)
+    elsewhere = replace(reg, pose=reg.pose + [1.0, 0.7, 0.0])
+    assert not place.fits(elsewhere, scan, config)
+
+
+def _hypothesis(score: float, scans: int, declared: bool = False) -> Hypothesis:
+    h = Hypothesis(PoseFilter(np.zeros(3), np.eye(3) * 1e-4, MappingConfig().motion))
+    h.scores = deque([score] * scans, maxlen=h.scores.maxlen)
+    h.fitted = deque([score] * scans, maxlen=h.fitted.maxlen)
+    h.fits = h.streak = scans
+    h.searches = 0
+    h.declared = declared
+    return h
+
+
+class _NoLookAlikes:
+    """A saved map in which no place has a look-alike nearby (nothing to search)."""
+
+    def nearest(self, pose: np.ndarray) -> None:
+        return None
+
+
+def _decided(hypotheses: list[Hypothesis]) -> tuple[State, Localizer]:
+    loc = Localizer(places=_NoLookAlikes())
+    loc._lost = True
+    loc.hypotheses = hypotheses
+    return loc._decide(), loc
+
+
+def test_the_lost_place_resumes_against_a_look_alike_but_not_against_a_clearly_better_one():
+    lost = _hypothesis(0.95, MIN_FITS, declared=True)
+    look_alike = _hypothesis(0.94, 20)
+    state, loc = _decided([look_alike, lost])
+    assert state is State.LOCALIZED and loc.hypotheses == [lost] and lost.trusted
+    # A place that leaves far less of the scans unexplained wins: the robot was carried.
+    lost = _hypothesis(0.85, MIN_FITS, declared=True)
+    better = _hypothesis(0.995, 20)
+    state, loc = _decided([better, lost])
+    assert state is not State.LOCALIZED or loc.hypotheses != [lost]
+    # Fitting for fewer than MIN_FITS scans in a row is not enough.
+    lost = _hypothesis(0.95, MIN_FITS - 1, declared=True)
+    state, loc = _decided([_hypothesis(0.94, 20), lost])
+    assert state is not State.LOCALIZED
