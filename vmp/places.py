@@ -21,7 +21,7 @@ import numpy as np
 from milestones.manager import MilestoneManager
 from vmp.branch_bound import SearchGrid, likelihood_field
 from vmp.config import RegistrationConfig
-from vmp.registration import MIN_DISTANCE, Reference, Registration, explained, fits
+from vmp.registration import Reference, Registration, explained, fits, last_gate
 from vmp.submaps import voxel_thin
 from vmp.types import FloatArray, inverse, transform_points
 from vmp.vector_map import VectorMap
@@ -74,8 +74,7 @@ class Place:
         tracking never corrected the pose.)"""
         if not np.isfinite(reg.rms):
             return False
-        gate = max(MIN_DISTANCE, 4.0 * reg.rms + 0.02)  # ICP's last correspondence gate
-        share = explained(self.reference, points, reg.pose, gate)
+        share = explained(self.reference, points, reg.pose, last_gate(reg.rms))
         return fits(replace(reg, inliers=share), config)
 
     @property

@@ -18,7 +18,8 @@ from scipy.spatial import cKDTree
 from vmp.config import RegistrationConfig
 from vmp.types import FloatArray, transform_points
 
-__all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "register"]
+__all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "last_gate",
+           "register"]
 
 
 MIN_POINTS = 20  # a scan with fewer returns is neither registered nor matched
@@ -111,6 +112,11 @@ def fits(reg: Registration, config: RegistrationConfig) -> bool:
                 and reg.inliers >= config.min_inliers)
 
 
+def last_gate(rms: float) -> float:
+    """The correspondence gate (m) ICP has shrunk to at a fit of residual RMS ``rms``."""
+    return max(MIN_DISTANCE, 4.0 * rms + 0.02)
+
+
 def explained(reference: Reference, points: FloatArray, pose: FloatArray,
               distance: float) -> float:
     """The share of ``points`` (their frame) placed at ``pose`` that lie within ``distance``
@@ -197,7 +203,7 @@ def _icp(reference: Reference, pts: FloatArray, initial: FloatArray,
         th = (th + dth + math.pi) % (2 * math.pi) - math.pi
         rms = math.sqrt(float(w @ (e * e)) / wsum)
         inliers = n_matched / len(pts)
-        gate = max(MIN_DISTANCE, min(gate, 4.0 * rms + 0.02))
+        gate = min(gate, last_gate(rms))
         if max(abs(dx), abs(dy), abs(dth)) < TOLERANCE:
             converged = True
             break

@@ -51,12 +51,11 @@ class Submaps:
         by id); None when none of them holds a segment."""
         vmap = self.map
         ids = range(max(anchor - around, 0), min(anchor + around, len(anchor_poses) - 1) + 1)
-        segments, parts = [], []
+        parts = []
         for mid in ids:  # a handful of milestones, each a block of scans
             mine = vmap.segments_of(mid)
             if not mine:
                 continue
-            segments += mine
             scans = np.concatenate([np.arange(r.start, r.stop)
                                     for r in map(vmap.segment_scans, mine)])
             pts = self._points(scans)
@@ -65,7 +64,7 @@ class Submaps:
             parts.append(pts)
         if not parts:
             return None
-        return tuple(segments), voxel_thin(np.concatenate(parts), VOXEL)
+        return self.segments_around(anchor, around), voxel_thin(np.concatenate(parts), VOXEL)
 
     def _points(self, scans: np.ndarray) -> FloatArray:
         """Hit points of ``scans`` in their segments' anchor frame."""
