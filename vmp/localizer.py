@@ -5,8 +5,9 @@ odometry increment (:mod:`vmp.frontend`) and is registered against the submap of
 milestone nearest it (:mod:`vmp.places`): a close fit within its filter's gate corrects it, a
 scan without one is a miss. Until one hypothesis is trusted, the milestone signatures propose
 places every few scans (:mod:`vmp.relocalization`), each search leaving out the places already
-followed, so that search after search goes farther down the signatures' list: a place that
-looks like the right one must not win only because the right one was never looked at.
+followed and the milestones searched from about here, so that search after search goes farther
+down the signatures' list: a place that looks like the right one must not win only because the
+right one was never looked at.
 
 How well a scan fits a hypothesis is the mean likelihood of its points in the submap's search
 grid at the registered pose (the branch-and-bound score). A scan fits when ICP fits closely,
@@ -39,7 +40,8 @@ partner lies on a clear line: a registration fits when most of the scan lies nea
 (:meth:`vmp.places.Place.fits`). And the hypotheses move by scan odometry, as the mapper's
 filter does: a registration against such a map places one scan to a centimetre or two, and
 scan after scan those errors do not average out unless the motion between them is known
-better still.
+better still. Once trusted, a place is registered against the map every decimetre or five
+degrees of travel, scan odometry carrying it in between; every scan is still scored there.
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ import numpy as np
 
 from vmp.branch_bound import search, search_points
 from vmp.config import MappingConfig
-from vmp.frontend import FrontEnd
+from vmp.frontend import FrontEnd, new_view
 from vmp.fusion import CHI2_3DOF_99, PoseFilter
 from vmp.places import Place, Places
 from vmp.registration import MIN_POINTS, register
@@ -69,6 +71,17 @@ LOST_AFTER = 5  # misses in a row after which the robot is lost
 MIN_SCORE = 0.7  # the least mean score over the window of a place to be declared
 DROP_AFTER = 3  # misses in a row after which an untrusted hypothesis is dropped
 DEAD_RECKONING = 100  # misses in a row after which a trusted one is dropped too
+RETRY_XY = 0.5  # a milestone searched is searched again once the robot moved this far (m) ...
+RETRY_THETA = math.radians(10.0)  # ... or turned this much
+# The place trusted is registered against the map once the robot has moved this far (m) or
+# turned this much since its last registration; in between, scan odometry carries it (over a
+# decimetre it errs by millimetres) and each scan is scored where it is predicted, so that a
+# kidnap is noticed as before. Registrations of nearly the same view against the same map share
+# the map's own local error: registering every 2 cm, 0.1 m or 0.25 m gave the same relation
+# errors on the Intel part, ACES and fr079 (docs/benchmarks.md), and a registration costs three
+# times what scan odometry does (a submap of 13,000 points against a scan's 180).
+TRACK_EVERY_XY = 0.1
+TRACK_EVERY_THETA = math.radians(5.0)
 SAME_XY = 0.3  # a proposal this near a hypothesis (m) ...
 SAME_THETA = math.radians(5.0)  # ... and turned this little agrees with it
 MAX_HYPOTHESES = 8  # the most places followed at once (the lowest scores dropped)
@@ -113,6 +126,7 @@ class Hypothesis:
     scores: deque[float] = field(default_factory=lambda: deque(maxlen=WINDOW))  # 0: a miss
     fitted: deque[float] = field(default_factory=lambda: deque(maxlen=2 * WINDOW))
     place: Place | None = None  # the submap it is registered against
+    registered_at: FloatArray | None = None  # its pose at the last registration that counted
 
     @property
     def pose(self) -> FloatArray:
@@ -159,6 +173,10 @@ class Localizer:
         self._last_search = -SEARCH_EVERY
         self.state = State.SEARCHING
         self._lost = False  # localized once, and the scans stopped fitting
+        # The robot's pose by odometry alone (its own frame), and where it was when each
+        # milestone was last searched: searched again only from elsewhere.
+        self._odometry = np.zeros(3)
+        self._tried: dict[int, FloatArray] = {}
         if initial_pose is not None:  # one more place to follow, judged like the others
             self.hypotheses.append(self._start(
                 np.asarray(initial_pose, dtype=np.float64),
@@ -169,6 +187,7 @@ class Localizer:
         self.scan += 1
         self.front.predict(frame)
         u, q = self.front.increment
+        self._odometry = compose(self._odometry, u)
         points = self._points = frame.points()
         for h in self.hypotheses:
             h.filter.predict(u, q)
@@ -178,8 +197,10 @@ class Localizer:
             self._last_search = self.scan
             for h in self.hypotheses:
                 h.searches += 1
-            proposals = propose(self.places, frame, self.config.registration, self.stats,
-                                [h.pose for h in self.hypotheses])
+            proposals, searched = propose(self.places, frame, self.config.registration,
+                                          self.stats, [h.pose for h in self.hypotheses],
+                                          tried=self._tried_here())
+            self._tried.update((mid, self._odometry.copy()) for mid in searched)
             for p in proposals:
                 self._add(p)
         self._prune()
@@ -202,6 +223,7 @@ class Localizer:
         place = h.place
         if place is None or math.hypot(*(place.pose[:2] - h.pose[:2])) > SWITCH_PLACE:
             place = h.place = self.places.nearest(h.pose)
+            h.registered_at = None
         if place is None or len(points) < MIN_POINTS:
             h.misses += 1
             h.streak = 0
@@ -214,14 +236,22 @@ class Localizer:
             h.streak = 0
             h.scores.append(0.0)
             return
-        reg = register(place.reference, near, relative(place.pose, h.pose))
-        z = compose(place.pose, reg.pose)
-        R = rotate_covariance(reg.covariance, place.pose[2])
-        update = (place.fits(reg, near, self.config.registration)
-                  and h.filter.mahalanobis2(z, R) <= CHI2_3DOF_99)
+        predicted = relative(place.pose, h.pose)
+        update = False
+        # A place trusted is registered every TRACK_EVERY (and, after a registration that
+        # did not fit, at once again); one followed, whenever the robot does not stand still.
+        every = (TRACK_EVERY_XY, TRACK_EVERY_THETA) if h.trusted else ()
+        if new_view(h.registered_at, h.pose, *every):
+            reg = register(place.reference, near, predicted)
+            z = compose(place.pose, reg.pose)
+            R = rotate_covariance(reg.covariance, place.pose[2])
+            update = (place.fits(reg, near, self.config.registration)
+                      and h.filter.mahalanobis2(z, R) <= CHI2_3DOF_99)
+            if update or not h.trusted:
+                h.registered_at = h.pose.copy()
         # Scored where the scan lands: registered, or predicted when ICP did not fit (part
-        # of the view may lie outside the map, a room it never saw).
-        score = place.score(near, reg.pose if update else relative(place.pose, h.pose))
+        # of the view may lie outside the map, a room it never saw) or was not run.
+        score = place.score(near, reg.pose if update else predicted)
         if score < KEEP_RATIO * h.usual:
             h.misses += 1
             h.streak = 0
@@ -244,6 +274,14 @@ class Localizer:
         h.scores.append(p.score)
         h.fitted.append(p.score)
         self.hypotheses.append(h)
+
+    def _tried_here(self) -> set[int]:
+        """The milestones searched from about here (within :data:`RETRY_XY` and
+        :data:`RETRY_THETA` by odometry): the same view would fail there again."""
+        here = [(mid, relative(at, self._odometry)) for mid, at in self._tried.items()]
+        self._tried = {mid: self._tried[mid] for mid, d in here
+                       if math.hypot(d[0], d[1]) <= RETRY_XY and abs(d[2]) <= RETRY_THETA}
+        return set(self._tried)
 
     def _prune(self) -> None:
         """Drop hypotheses that stopped fitting and ones that met a better one; keep the

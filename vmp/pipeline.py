@@ -26,7 +26,7 @@ import numpy as np
 from milestones.manager import MilestoneManager
 from vmp.backend import BackEnd
 from vmp.config import MappingConfig
-from vmp.frontend import FrontEnd
+from vmp.frontend import FrontEnd, new_view
 from vmp.loops import NEIGHBOURS, LoopSearch
 from vmp.mapfile import MapData
 from vmp.matcher import Doubt, Kind, Match, Matcher, Seed
@@ -41,14 +41,6 @@ __all__ = ["Pipeline"]
 # A loop edge the robust adjustment left less than this share of its information counts as
 # down-weighted in the summary.
 DOWN_WEIGHTED = 0.5
-# A scan is matched against the stored milestones once the robot has moved this far (m) or
-# turned this much since the last matched scan: standing still, it sees what it saw, and a match
-# on the same view again would count the same evidence twice in the filter. (Matching only
-# every 0.1 m or 5 degrees, as a view that is new, took the Intel part's mapping from 40 to
-# 29 s but the simulated office's median ATE from 1.31 to 1.73 cm: a moving robot's scans are
-# new evidence; docs/benchmarks.md.)
-MATCH_EVERY_XY = 0.02
-MATCH_EVERY_THETA = math.radians(1.0)
 
 
 class Pipeline:
@@ -116,7 +108,7 @@ class Pipeline:
                       self.back.milestone_cov)
         scan = len(self.map)
         matches = []
-        if self._moved(x):
+        if new_view(self.matched_at, x):  # standing still, a scan is not matched again
             self.matched_at = x.copy()
             matches = self.matcher.match(frame, x, P, self.back.anchor, doubt,
                                          self.back.closed_from_anchor())
@@ -134,15 +126,6 @@ class Pipeline:
                                                       0.0, find.signature, x, P, doubt,
                                                       Seed.SEARCH))
         return matches
-
-    def _moved(self, x: FloatArray) -> bool:
-        """Whether the robot at ``x`` has moved enough since the last matched scan."""
-        last = self.matched_at
-        if last is None:
-            return True
-        turn = abs(math.remainder(float(x[2] - last[2]), math.tau))
-        return bool(math.hypot(x[0] - last[0], x[1] - last[1]) >= MATCH_EVERY_XY
-                    or turn >= MATCH_EVERY_THETA)
 
     def _drift(self, x: FloatArray, P: FloatArray, doubt: Doubt
                ) -> Callable[[int], FloatArray]:

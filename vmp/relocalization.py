@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
 
-from vmp.branch_bound import search, search_points
+from vmp.branch_bound import Match, search, search_points
 from vmp.config import RegistrationConfig
-from vmp.places import Places
+from vmp.places import Place, Places
 from vmp.registration import MIN_POINTS, Registration, register
 from vmp.types import FloatArray, ScanFrame, compose, relative
 
@@ -48,32 +49,41 @@ class Proposal:
 
 def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
             stats: Counter[str], known: list[FloatArray] = (),
-            candidates: int = CANDIDATES) -> list[Proposal]:
-    """The verified places of one scan, best signatures first, leaving out the milestones
-    whose search window holds one of the ``known`` poses (map frame): the places already
-    followed, so that search after search looks farther down the signatures' list."""
+            candidates: int = CANDIDATES,
+            tried: Collection[int] = ()) -> tuple[list[Proposal], list[int]]:
+    """The verified places of one scan, best signatures first, and the milestones searched.
+
+    Left out are the milestones whose search window holds one of the ``known`` poses (map
+    frame), the places already followed, and those ``tried`` (searched lately, from about
+    here): search after search looks farther down the signatures' list. (ACES, its second
+    half: the robot stands still for 170 scans where the right milestone ranks 30th, and the
+    same failing candidates above it were searched again every time, each hiding its
+    neighbours as one place.)"""
     points = frame.points()
     if len(points) < MIN_POINTS:
-        return []
+        return [], []
     ranked = places.milestones.query(frame.ranges, frame.angle_min, frame.angle_increment,
                                      frame.max_range, max_candidates=SHORTLIST)
     live = search_points(points)
     out: list[Proposal] = []
     chosen: list[FloatArray] = []
+    searched: list[int] = []
     for cand in ranked:  # a few dozen at most
         if len(chosen) >= candidates:
             break
+        if cand.id in tried:
+            continue
         if any(math.hypot(*(cand.pose[:2] - p[:2])) < DISTINCT for p in chosen):
             continue
         if any(_covers(cand.pose, cand.heading_offset, p) for p in known):
             continue
         chosen.append(cand.pose)
+        searched.append(cand.id)
         place = places.place(cand.id)
         if place is None:
             continue
         stats["places searched"] += 1
-        center = np.array([0.0, 0.0, cand.heading_offset])
-        best = search(place.grid, live, center, WINDOW_XY, WINDOW_THETA, MIN_SCORE)
+        best = _search(place, live, cand.heading_offset, places.milestones.config.record_turn)
         if best is None:
             continue
         reg = register(place.reference, points, best.pose)
@@ -85,7 +95,24 @@ def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
         stats["places verified"] += 1
         out.append(Proposal(compose(place.pose, reg.pose), cand.id, best.score, cand.score,
                             reg))
-    return out
+    return out, searched
+
+
+def _search(place: Place, live: FloatArray, offset: float, record_turn: float) -> Match | None:
+    """The best pose of the live points in ``place``'s submap near its milestone: turned by
+    the signature's heading ``offset``, or as the milestone faces (within ``record_turn``, the
+    turn after which the mapper records a new milestone: a robot that passed here facing this
+    way has a milestone near it within that turn). The signature's offset alone misses where
+    the signatures of a cluttered place change over the metre between milestones (ACES, where
+    its first half ends: the right milestone's best offset 27 degrees off, its signature at
+    the true heading the worst of its curve)."""
+    best = search(place.grid, live, np.zeros(3), WINDOW_XY, record_turn, MIN_SCORE)
+    if abs(offset) > record_turn - WINDOW_THETA:
+        other = search(place.grid, live, np.array([0.0, 0.0, offset]), WINDOW_XY,
+                       WINDOW_THETA, MIN_SCORE if best is None else best.score)
+        if other is not None and (best is None or other.score > best.score):
+            best = other
+    return best
 
 
 def _covers(node: FloatArray, offset: float, pose: FloatArray) -> bool:
