@@ -90,3 +90,40 @@ def test_the_lost_place_resumes_against_a_look_alike_but_not_against_a_clearly_b
     lost = _hypothesis(0.95, MIN_FITS - 1, declared=True)
     state, loc = _decided([_hypothesis(0.94, 20), lost])
     assert state is not State.LOCALIZED
+
+
+def test_a_trusted_place_is_registered_once_the_robot_moved_a_decimetre_and_scored_every_scan(
+        monkeypatch):
+    from conftest import mapped
+
+    import vmp.localizer as localizer_module
+    from drivers import open_source
+    from vmp.localization import LocalizationRun
+    from vmp.mapfile import MapData
+    from vmp.source import FrameList, Reference
+
+    calls: list[int] = []
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return register(*args, **kwargs)
+
+    monkeypatch.setattr(localizer_module, "register", counted)
+    r = mapped("lab")
+    p = r.pipeline
+    saved = MapData(p.map, p.milestones, p.back.graph, {}, r.stamps, r.trajectory)
+    sim = open_source("lab", seed=5)
+    frames, truth = list(sim)[400:600], sim.reference().poses[400:600]
+    res = LocalizationRun(saved, FrameList(frames, "lab", Reference(truth, "truth", True))).run()
+    loc = res.localized
+    assert loc[30:].mean() > 0.9
+    # Once localized, one place is followed: registered every 0.1 m or 5 degrees of travel
+    # (the lab's robot covers some 3 cm a scan), where it was every scan.
+    travelled = np.hypot(*np.diff(truth[loc][:, :2], axis=0).T).sum()
+    turned = np.abs(np.diff(np.unwrap(truth[loc][:, 2]))).sum()
+    first = int(np.argmax(loc))
+    # (Before the robot is localized, up to eight places are followed, each registered.)
+    assert len(calls) <= travelled / 0.1 + turned / math.radians(5.0) + 8 * first + 10
+    assert len(calls) < 0.5 * len(frames)  # every scan: at least one a scan
+    err = res.errors()[loc]
+    assert float(np.sqrt(np.mean(err**2))) < 0.1
