@@ -126,7 +126,7 @@ class Hypothesis:
     scores: deque[float] = field(default_factory=lambda: deque(maxlen=WINDOW))  # 0: a miss
     fitted: deque[float] = field(default_factory=lambda: deque(maxlen=2 * WINDOW))
     place: Place | None = None  # the submap it is registered against
-    registered_at: FloatArray | None = None  # its pose at the last registration that counted
+    registered_at: FloatArray | None = None  # its pose at the last registration
 
     @property
     def pose(self) -> FloatArray:
@@ -238,17 +238,16 @@ class Localizer:
             return
         predicted = relative(place.pose, h.pose)
         update = False
-        # A place trusted is registered every TRACK_EVERY (and, after a registration that
-        # did not fit, at once again); one followed, whenever the robot does not stand still.
+        # A place trusted is registered every TRACK_EVERY; one followed, whenever the robot
+        # does not stand still.
         every = (TRACK_EVERY_XY, TRACK_EVERY_THETA) if h.trusted else ()
         if new_view(h.registered_at, h.pose, *every):
+            h.registered_at = h.pose.copy()
             reg = register(place.reference, near, predicted)
             z = compose(place.pose, reg.pose)
             R = rotate_covariance(reg.covariance, place.pose[2])
             update = (place.fits(reg, near, self.config.registration)
                       and h.filter.mahalanobis2(z, R) <= CHI2_3DOF_99)
-            if update or not h.trusted:
-                h.registered_at = h.pose.copy()
         # Scored where the scan lands: registered, or predicted when ICP did not fit (part
         # of the view may lie outside the map, a room it never saw) or was not run.
         score = place.score(near, reg.pose if update else predicted)
