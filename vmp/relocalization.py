@@ -4,7 +4,8 @@ The milestone signatures propose places: a global query over every stored milest
 the four comparison methods) gives the few best distinct milestones and, for each, the heading
 offset of the live scan. Each is verified the way the loop search verifies a loop: a
 branch-and-bound search (:mod:`vmp.branch_bound`) of the live scan over the milestone's submap,
-in a window around the node and the signature's heading, then ICP against the submap's points.
+in a window around the node, turned as the milestone faces or by the signature's heading
+offset, then ICP against the submap's points.
 A proposal that scores well and fits closely is a place the robot may be; which of them it is
 the localizer (:mod:`vmp.localizer`) decides over the following scans.
 """
