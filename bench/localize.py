@@ -9,7 +9,8 @@ follows it for 150 scans, is carried to another random place (3 m or more away; 
 does not see it) and follows 150 scans more. Per scenario: the runs localized within 30 scans of
 the start and of the kidnap, the median scans it took, wrong fixes (declared localized more than
 0.5 m from the truth), the scans still localized at the old place after the kidnap (before the
-scans stop fitting there), and the scans ambiguous.
+scans stop fitting there), the runs still localized there 30 scans after it, and the scans
+ambiguous.
 
 Real (every log in ../shared/data with a relations file): the first half of the log is mapped,
 the second half localized in that map from no pose, and scored on the relations whose two
@@ -127,13 +128,15 @@ def simulated(names: list[str], runs: int) -> list[dict]:
                "never": sum(k is None for k in both),
                "wrong": sum(r["wrong"] for r in results),
                "stale": statistics.median(r["stale"] for r in results),
+               "stuck": sum(r["stale"] > WITHIN for r in results),
                "ambiguous": sum(r["ambiguous"] for r in results),
                "rate": statistics.median(r["rate"] for r in results),
                "tracking": statistics.median(r["tracking"] for r in results),
                "map_rate": mapped.scans / mapped.mapping_time}
         print(f"{name}: {row['within']} of {row['of']} starts and kidnaps localized within "
               f"{WITHIN} scans (median {row['median']}, never {row['never']}); wrong fixes "
-              f"{row['wrong']}; scans at the old place after a kidnap (median) {row['stale']}; "
+              f"{row['wrong']}; scans at the old place after a kidnap (median) {row['stale']}, "
+              f"runs still there after {WITHIN} scans {row['stuck']}; "
               f"ambiguous scans {row['ambiguous']}; localizing {row['rate']:.0f} scans/s, "
               f"tracking {row['tracking']:.0f}, mapping {row['map_rate']:.0f}", flush=True)
         rows.append(row)
@@ -204,13 +207,16 @@ def table(sim: list[dict], rows: list[dict], runs: int) -> str:
                   f"random scan and kidnapped after {STRETCH} scans to a random place "
                   f"{CARRIED:.0f} m or more away (the odometry does not see it). "
                   "\"Stale\" is the median number of scans still localized at the old place "
-                  "after the kidnap, before the scans stop fitting there.", "",
+                  "after the kidnap, before the scans stop fitting there; \"stuck\" the runs "
+                  f"still localized there after {WITHIN} scans (a kidnap to a place that looks "
+                  "the same).", "",
                   f"| scenario | localized within {WITHIN} scans (starts + kidnaps) | median "
-                  "scans | never | wrong fixes | stale | ambiguous scans | scans/s: localizing, "
-                  "tracking, mapping |", "|---|---|---|---|---|---|---|---|"]
+                  "scans | never | wrong fixes | stale | stuck | ambiguous scans | scans/s: "
+                  "localizing, tracking, mapping |", "|---|---|---|---|---|---|---|---|---|"]
         for r in sim:
             lines.append(f"| {r['name']} | {r['within']} of {r['of']} | {r['median']} | "
-                         f"{r['never']} | {r['wrong']} | {r['stale']} | {r['ambiguous']} | "
+                         f"{r['never']} | {r['wrong']} | {r['stale']} | {r['stuck']} | "
+                         f"{r['ambiguous']} | "
                          f"{r['rate']:.0f}, {r['tracking']:.0f}, {r['map_rate']:.0f} |")
         lines.append("")
     if rows:
