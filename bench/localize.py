@@ -42,7 +42,7 @@ from report import machine, write_section
 
 from drivers import open_source
 from drivers.splice import carried
-from vmp.evaluate import read_relations, relation_error
+from vmp.evaluate import read_relations, relation_error, relations_between
 from vmp.localization import WRONG_FIX, LocalizationResult, LocalizationRun
 from vmp.localizer import State
 from vmp.mapfile import MapData, load_map, save_map
@@ -64,18 +64,6 @@ def saved(result: Result) -> MapData:
         path = Path(tmp) / "map.vmpmap"
         save_map(path, p.map, p.milestones, p.back.graph, {}, result.trajectory)
         return load_map(path)
-
-
-def between(relations: np.ndarray, stamps: np.ndarray) -> np.ndarray:
-    """The relations whose two stamps are both among ``stamps`` (as relation_error matches
-    them)."""
-    ss = np.sort(stamps)
-
-    def found(t: np.ndarray) -> np.ndarray:
-        pos = np.clip(np.searchsorted(ss, t), 1, len(ss) - 1)
-        return np.minimum(np.abs(ss[pos - 1] - t), np.abs(ss[pos] - t)) <= 1e-4
-
-    return relations[found(relations[:, 0]) & found(relations[:, 1])]
 
 
 def recovery(res: LocalizationResult, start: int, stop: int) -> int | None:
@@ -162,7 +150,8 @@ def real(only: str | None) -> list[dict]:
         # The same relations as the localized scans', mapped: the like-for-like comparison
         # (a robot is localized where the first half mapped, and not everywhere the second
         # half drives, so its relations are not a random sample of the second half's).
-        e_same = relation_error(full.stamps, full.trajectory, between(inside, res.stamps[loc]))
+        e_same = relation_error(full.stamps, full.trajectory,
+                                relations_between(res.stamps[loc], inside))
         first_fix = int(np.argmax(loc)) if loc.any() else None
         map_rate = full.scans / full.mapping_time
         # A second session: the second half mapped on in the first half's map, and the two

@@ -111,3 +111,14 @@ def test_wrong_corrections_are_those_that_move_away_from_the_truth_by_more_than_
     assert wrong_corrections(corrections, truth, limit=0.01) == [
         (1, "handover"), (2, "graph"), (9, "anchor")]
     assert wrong_corrections([], truth) == []
+
+
+def test_relations_between_keeps_those_whose_two_stamps_are_matched():
+    from vmp.evaluate import relation_error, relations_between
+
+    stamps = np.array([0.0, 1.0, 2.0, 3.0])
+    rel = np.array([[0.0, 1.0, 1, 0, 0], [1.0, 2.5, 1, 0, 0], [2.0, 3.00001, 1, 0, 0]])
+    kept = relations_between(stamps, rel)
+    assert np.array_equal(kept, rel[[0, 2]])
+    poses = np.c_[stamps, np.zeros(4), np.zeros(4)]
+    assert relation_error(stamps, poses, rel).used == len(kept)

@@ -9,12 +9,18 @@ from collections import deque
 from dataclasses import replace
 
 import numpy as np
+from conftest import mapped
 
+import vmp.localizer as localizer_module
+from drivers import open_source
 from vmp.config import MappingConfig
 from vmp.fusion import PoseFilter
+from vmp.localization import LocalizationRun
 from vmp.localizer import MIN_FITS, Hypothesis, Localizer, State
+from vmp.mapfile import MapData
 from vmp.places import Place
 from vmp.registration import fits, register
+from vmp.source import FrameList, Reference
 
 
 def _room(rng: np.random.Generator) -> np.ndarray:
@@ -94,14 +100,6 @@ def test_the_lost_place_resumes_against_a_look_alike_but_not_against_a_clearly_b
 
 def test_a_trusted_place_is_registered_once_the_robot_moved_a_decimetre_and_scored_every_scan(
         monkeypatch):
-    from conftest import mapped
-
-    import vmp.localizer as localizer_module
-    from drivers import open_source
-    from vmp.localization import LocalizationRun
-    from vmp.mapfile import MapData
-    from vmp.source import FrameList, Reference
-
     calls: list[int] = []
 
     def counted(*args, **kwargs):

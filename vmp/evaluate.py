@@ -18,7 +18,7 @@ from vmp.fileio import read_table
 from vmp.types import FloatArray, compose, inverse, relative, wrap_angle
 
 __all__ = ["ATE", "RPE", "RelationError", "align_se2", "associate", "ate", "read_relations",
-           "relation_error", "rpe", "wrong_corrections"]
+           "relation_error", "relations_between", "rpe", "wrong_corrections"]
 
 
 def associate(stamps_a: FloatArray, stamps_b: FloatArray,
@@ -127,6 +127,27 @@ def relation_errors(stamps: FloatArray, poses: FloatArray, relations: FloatArray
                     max_difference: float = 1e-4) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Per relation whose stamps both match a pose: its time span (s), translational (m)
     and rotational (rad) error, as Kümmerle et al. define them."""
+    i1, i2, ok = _stamped(stamps, relations, max_difference)
+    if not ok.any():
+        raise InputError("no relation has both of its stamps among the trajectory's stamps")
+    p = np.asarray(poses, dtype=np.float64)
+    delta = relative(p[i1[ok]], p[i2[ok]])
+    rel = relations[ok][:, 2:5]
+    err = compose(inverse(rel), delta)
+    span = np.abs(relations[ok, 1] - relations[ok, 0])
+    return span, np.hypot(err[:, 0], err[:, 1]), np.abs(wrap_angle(err[:, 2]))
+
+
+def relations_between(stamps: FloatArray, relations: FloatArray,
+                      max_difference: float = 1e-4) -> FloatArray:
+    """The relations whose two stamps both match one of ``stamps`` (those the metric uses)."""
+    return relations[_stamped(stamps, relations, max_difference)[2]]
+
+
+def _stamped(stamps: FloatArray, relations: FloatArray, max_difference: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each relation the index of the stamp nearest each of its two stamps, and whether
+    both lie within ``max_difference``."""
     s = np.asarray(stamps, dtype=np.float64)
     order = np.argsort(s, kind="stable")
     ss = s[order]
@@ -139,15 +160,7 @@ def relation_errors(stamps: FloatArray, poses: FloatArray, relations: FloatArray
 
     i1, ok1 = nearest(relations[:, 0])
     i2, ok2 = nearest(relations[:, 1])
-    ok = ok1 & ok2
-    if not ok.any():
-        raise InputError("no relation has both of its stamps among the trajectory's stamps")
-    p = np.asarray(poses, dtype=np.float64)
-    delta = relative(p[i1[ok]], p[i2[ok]])
-    rel = relations[ok][:, 2:5]
-    err = compose(inverse(rel), delta)
-    span = np.abs(relations[ok, 1] - relations[ok, 0])
-    return span, np.hypot(err[:, 0], err[:, 1]), np.abs(wrap_angle(err[:, 2]))
+    return i1, i2, ok1 & ok2
 
 
 def relation_error(stamps: FloatArray, poses: FloatArray, relations: FloatArray,
