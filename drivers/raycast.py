@@ -8,6 +8,12 @@ from vmp.types import FloatArray
 
 __all__ = ["cast_discs", "cast_segments"]
 
+# Poses are cast a few at a time so that the (poses, beams, segments) arrays stay near this
+# many elements (0.5 MB of doubles): within the cache, and reused by the allocator instead
+# of fresh pages from the system. Casting 16 poses at once (3.2 MB arrays in the office)
+# cost 250,000 page faults of the office run's 330,000.
+CHUNK_ELEMENTS = 65_536
+
 
 def cast_segments(origins: FloatArray, angles: FloatArray, segments: FloatArray) -> FloatArray:
     """Distance along each ray to the nearest segment, ``inf`` where a ray hits none.
@@ -29,14 +35,30 @@ def cast_segments(origins: FloatArray, angles: FloatArray, segments: FloatArray)
     w_cross_e = (wx * ey - wy * ex)[:, None, :]  # (P, 1, S)
     dx = np.cos(angles)[..., None]  # (P, B, 1)
     dy = np.sin(angles)[..., None]
-    denom = dx * ey - dy * ex  # (P, B, S)
-    w_cross_d = wx[:, None, :] * dy - wy[:, None, :] * dx
+    out = np.empty((P, B))
+    step = max(1, CHUNK_ELEMENTS // (B * len(segments)))
+    for p in range(0, P, step):
+        rows = slice(p, p + step)
+        out[rows] = _nearest_hit(wx[rows], wy[rows], w_cross_e[rows], dx[rows], dy[rows], ex, ey)
+    return out
+
+
+def _nearest_hit(wx: FloatArray, wy: FloatArray, w_cross_e: FloatArray, dx: FloatArray,
+                 dy: FloatArray, ex: FloatArray, ey: FloatArray) -> FloatArray:
+    """:func:`cast_segments` for a few poses, its ``(P, B, S)`` arrays made in place."""
+    denom = dx * ey  # (P, B, S)
+    denom -= dy * ex
+    u = wx[:, None, :] * dy
+    u -= wy[:, None, :] * dx
     with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / denom
-        t = w_cross_e * inv
-        u = w_cross_d * inv
-    hit = (t > 1e-9) & (u >= 0.0) & (u <= 1.0)
-    return np.where(hit, t, np.inf).min(axis=-1)
+        inv = np.divide(1.0, denom, out=denom)
+        t = np.multiply(w_cross_e, inv)
+        u *= inv
+    hit = t > 1e-9  # comparisons with NaN (parallel rays) are False: no hit
+    hit &= u >= 0.0
+    hit &= u <= 1.0
+    t[~hit] = np.inf
+    return t.min(axis=-1)
 
 
 def cast_discs(origins: FloatArray, angles: FloatArray, centers: FloatArray,

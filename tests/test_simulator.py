@@ -55,6 +55,25 @@ def test_ray_segment_and_disc_by_hand():
                                [[np.inf, 2.5, np.inf]])
 
 
+def test_casting_a_few_poses_at_a_time_changes_no_range(monkeypatch):
+    """Poses cast in chunks (small here, so that many chunks and a short last one occur)
+    give what one pose at a time gives, rays parallel to a wall included (no hit)."""
+    import drivers.raycast as raycast
+
+    rng = np.random.default_rng(4)
+    segments = rng.uniform(-5, 5, (30, 4))
+    segments[0] = [-5.0, 1.0, 5.0, 1.0]  # the first pose's beam at angle 0 runs along it
+    origins = rng.uniform(-3, 3, (23, 2))
+    origins[0] = [0.0, 1.0]
+    angles = rng.uniform(-math.pi, math.pi, (23, 17))
+    angles[0, 0] = 0.0
+    one_by_one = np.vstack([cast_segments(origins[i:i + 1], angles[i:i + 1], segments)
+                            for i in range(len(origins))])
+    monkeypatch.setattr(raycast, "CHUNK_ELEMENTS", 3 * 17 * 30)
+    np.testing.assert_array_equal(cast_segments(origins, angles, segments), one_by_one)
+    assert np.isfinite(one_by_one).mean() > 0.5
+
+
 def test_same_seed_same_frames_and_other_seed_differs():
     sc = load_scenario("office")
     a = list(Simulator(sc, max_scans=80))
