@@ -35,6 +35,7 @@ DEPTH = 5  # levels of block maxima
 VOXEL = 0.05  # one map point kept per cell of this size (m); 0.1 did worse on Intel
 MAX_WINDOW = 6.0  # the widest search window either way (m): the localizer's alias check
 CACHED = 32  # submaps kept (a search grid of one is a few MB)
+PATH_STEP = 1.0  # the saved path is sampled every this far (m) for look-alikes of a place
 TURN_COST = 1.0  # choosing the nearest milestone, a radian of heading counts as this (m)
 
 
@@ -94,7 +95,9 @@ class Places:
         self.map = vmap
         self.milestones = milestones
         self.points = voxel_thin(vmap.world_points(trajectory), VOXEL)
+        self.path = _along(np.asarray(trajectory, dtype=np.float64), PATH_STEP)
         self._cache: OrderedDict[int, Place | None] = OrderedDict()
+        self._grid: SearchGrid | None = None
 
     def __len__(self) -> int:
         return len(self.milestones)
@@ -114,6 +117,15 @@ class Places:
             self._cache.popitem(last=False)
         return place
 
+    @property
+    def grid(self) -> SearchGrid:
+        """One search grid of the whole map, in the map frame (built on first use): for
+        look-alikes anywhere along the path, where no milestone may be (a corridor's
+        look-alike stretches are refused as milestones when mapped)."""
+        if self._grid is None:
+            self._grid = SearchGrid(self.points, RESOLUTION, SIGMA, DEPTH, MAX_WINDOW)
+        return self._grid
+
     def nearest(self, pose: FloatArray) -> Place | None:
         """The submap of the milestone nearest ``pose`` (a turn counts as
         :data:`TURN_COST` metres a radian) that holds enough points."""
@@ -127,3 +139,14 @@ class Places:
             if place is not None:
                 return place
         return None
+
+
+def _along(trajectory: FloatArray, step: float) -> FloatArray:
+    """Poses of ``trajectory`` about ``step`` apart along its path (the first one, then each
+    one ``step`` farther along than the last kept)."""
+    if len(trajectory) == 0:
+        return np.zeros((0, 3))
+    travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(trajectory[:, :2],
+                                                                    axis=0).T))])
+    marks = np.searchsorted(travelled, np.arange(0.0, travelled[-1] + 1e-9, step))
+    return trajectory[np.unique(marks)]
