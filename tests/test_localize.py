@@ -73,6 +73,24 @@ def test_a_kidnapped_robot_is_found_again_where_it_was_carried():
     assert (loc[n:] & (err[n:] > 0.5)).sum() < LOST_AFTER
 
 
+def test_a_corridor_stretch_without_a_milestone_is_ambiguous_not_a_look_alike():
+    """The corridor's map records milestones only near its ends (the views between match one
+    recorded already); a robot carried into the middle (seed 110 of the localize bench: 12.6 m
+    along) must not be declared at a look-alike stretch 28 m away."""
+    frames, truth = _run("corridor", 110)
+    a, b, n = 845, 1328, 150
+    joined = carried([frames[a:a + n], frames[b:b + n]])
+    ref = Reference(np.vstack([truth[a:a + n], truth[b:b + n]]), "ground truth", True)
+    saved = _saved("corridor")
+    milestones_x = saved.milestones.poses[:, 0]
+    assert not ((milestones_x > 5.0) & (milestones_x < 30.0)).any()  # the premise
+    res = LocalizationRun(saved, FrameList(joined, "corridor", ref)).run()
+    err = res.errors()
+    loc = res.localized
+    assert not (loc & (err > 0.5)).any(), "a look-alike stretch was declared"
+    assert sum(s is State.AMBIGUOUS for s in res.states[n:]) > n // 2
+
+
 @pytest.mark.parametrize("method", ["ed", "cca", "dct", "hwt"])
 def test_every_signature_method_proposes_the_place(method):
     frames, truth = _run("lab", 7)
@@ -204,3 +222,16 @@ def test_an_initial_pose_is_accepted_and_judged_like_any_place():
                             initial_pose=truth[a] + np.array([2.0, -1.5, 0.5])).run()
     assert _first_right(wrong, 0, n) <= WITHIN
     assert (wrong.errors()[wrong.localized] <= 0.5).all()
+
+
+def test_the_saved_path_is_sampled_a_metre_apart():
+    from vmp.places import PATH_STEP, _along
+
+    t = np.linspace(0.0, 10.0, 1001)  # a straight line, 1 cm a pose, then back up along y
+    line = np.column_stack([t, np.zeros_like(t), np.zeros_like(t)])
+    back = np.column_stack([np.full_like(t, 10.0), t, np.full_like(t, np.pi / 2)])
+    path = _along(np.vstack([line, back]), PATH_STEP)
+    steps = np.hypot(*np.diff(path[:, :2], axis=0).T)
+    assert len(path) == 21
+    assert np.allclose(steps[steps < 1.2], 1.0, atol=0.02)
+    assert _along(np.zeros((0, 3)), PATH_STEP).shape == (0, 3)

@@ -142,11 +142,11 @@ class Places:
 
 
 def _along(trajectory: FloatArray, step: float) -> FloatArray:
-    """Poses of ``trajectory`` about ``step`` apart along its path (the first one, then each
-    one ``step`` farther along than the last kept)."""
+    """Poses of ``trajectory`` about ``step`` apart along its path: the first, each first
+    one ``step`` farther along than the one before, and the last."""
     if len(trajectory) == 0:
         return np.zeros((0, 3))
     travelled = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(trajectory[:, :2],
                                                                     axis=0).T))])
-    marks = np.searchsorted(travelled, np.arange(0.0, travelled[-1] + 1e-9, step))
-    return trajectory[np.unique(marks)]
+    marks = np.searchsorted(travelled, np.arange(0.0, travelled[-1], step))
+    return trajectory[np.unique(np.append(marks, len(trajectory) - 1))]
