@@ -16,6 +16,7 @@ from vmp.errors import InputError
 from vmp.localization import LocalizationRun, open_saved_map
 from vmp.localizer import LOST_AFTER, State
 from vmp.mapfile import MapData
+from vmp.places import PATH_STEP, samples_along
 from vmp.source import FrameList, Reference
 from vmp.tum import read_tum
 from vmp.types import relative
@@ -225,13 +226,11 @@ def test_an_initial_pose_is_accepted_and_judged_like_any_place():
 
 
 def test_the_saved_path_is_sampled_a_metre_apart():
-    from vmp.places import PATH_STEP, _along
-
     t = np.linspace(0.0, 10.0, 1001)  # a straight line, 1 cm a pose, then back up along y
     line = np.column_stack([t, np.zeros_like(t), np.zeros_like(t)])
     back = np.column_stack([np.full_like(t, 10.0), t, np.full_like(t, np.pi / 2)])
-    path = _along(np.vstack([line, back]), PATH_STEP)
+    path = samples_along(np.vstack([line, back]), PATH_STEP)
     steps = np.hypot(*np.diff(path[:, :2], axis=0).T)
     assert len(path) == 21
     assert np.allclose(steps[steps < 1.2], 1.0, atol=0.02)
-    assert _along(np.zeros((0, 3)), PATH_STEP).shape == (0, 3)
+    assert samples_along(np.zeros((0, 3)), PATH_STEP).shape == (0, 3)

@@ -24,7 +24,10 @@ be told from the others until the robot sees something that tells them apart). I
 simulated office the right place scores 0.998 (median; 0.98 at the tenth percentile), wrong
 ones that ICP still fits 0.67 (0.84 at the ninetieth), but other stretches of corridor seen
 only to 8 m up to 0.976 over twenty scans: a ratio of scores cannot tell them apart, the
-share of points left unexplained can (0.001 against 0.024).
+share of points left unexplained can (0.001 against 0.024). The signatures propose only
+places with a milestone, and the mapper records none where a view matches one recorded
+already (a corridor of pilasters keeps milestones only near its ends), so before a place is
+declared the scan is also searched along the saved path far from it (:meth:`_elsewhere`).
 
 It stays localized while the scans fit; after :data:`LOST_AFTER` misses in a row it is lost:
 the hypothesis keeps moving with odometry (the robot may just be looking into a room the map

@@ -26,7 +26,7 @@ from vmp.submaps import voxel_thin
 from vmp.types import FloatArray, inverse, transform_points
 from vmp.vector_map import VectorMap
 
-__all__ = ["Place", "Places"]
+__all__ = ["Place", "Places", "samples_along"]
 
 GRID_RADIUS = 20.0  # submap points farther than this from the milestone are left out (m)
 RESOLUTION = 0.1  # search grid cell (m)
@@ -95,7 +95,7 @@ class Places:
         self.map = vmap
         self.milestones = milestones
         self.points = voxel_thin(vmap.world_points(trajectory), VOXEL)
-        self.path = _along(np.asarray(trajectory, dtype=np.float64), PATH_STEP)
+        self.path = samples_along(np.asarray(trajectory, dtype=np.float64), PATH_STEP)
         self._cache: OrderedDict[int, Place | None] = OrderedDict()
         self._grid: SearchGrid | None = None
 
@@ -141,7 +141,7 @@ class Places:
         return None
 
 
-def _along(trajectory: FloatArray, step: float) -> FloatArray:
+def samples_along(trajectory: FloatArray, step: float) -> FloatArray:
     """Poses of ``trajectory`` about ``step`` apart along its path: the first, each first
     one ``step`` farther along than the one before, and the last."""
     if len(trajectory) == 0:
