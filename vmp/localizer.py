@@ -287,10 +287,14 @@ class Localizer:
     def _tried_here(self) -> set[int]:
         """The milestones searched from about here (within :data:`RETRY_XY` and
         :data:`RETRY_THETA` by odometry): the same view would fail there again."""
-        here = [(mid, relative(at, self._odometry)) for mid, at in self._tried.items()]
-        self._tried = {mid: self._tried[mid] for mid, d in here
-                       if math.hypot(d[0], d[1]) <= RETRY_XY and abs(d[2]) <= RETRY_THETA}
+        self._tried = {mid: at for mid, at in self._tried.items() if not self._moved_since(at)}
         return set(self._tried)
+
+    def _moved_since(self, at: FloatArray) -> bool:
+        """Whether the robot moved more than :data:`RETRY_XY` or turned more than
+        :data:`RETRY_THETA` by odometry since it was ``at`` (enough for a new view)."""
+        d = relative(at, self._odometry)
+        return math.hypot(d[0], d[1]) > RETRY_XY or abs(d[2]) > RETRY_THETA
 
     def _prune(self) -> None:
         """Drop hypotheses that stopped fitting and ones that met a better one; keep the
@@ -323,8 +327,7 @@ class Localizer:
         mine = place.grid.score(live, center)
         other = search(place.grid, live, center, ALIAS_WINDOW, ALIAS_TURN,
                        exclude=(center, *ALIAS_APART))
-        return other is not None and (1.0 - other.score
-                                      < RIVAL_FACTOR * (1.0 - mine) + RIVAL_MARGIN)
+        return other is not None and _as_well(other.score, mine)
 
     def _searching(self) -> bool:
         """Whether to look for the place: unless localized."""
@@ -377,10 +380,8 @@ class Localizer:
         milestones at 1-2 m and 34.6-39.3 m of its 39 m. A robot carried to 12.6 m could
         only be found at a look-alike, and one 28 m away, in step with the pilasters, was
         declared (0.97; the right stretch scores 0.98-0.99 but was never proposed)."""
-        if best.checked_at is not None:
-            moved = relative(best.checked_at, self._odometry)
-            if math.hypot(moved[0], moved[1]) <= RETRY_XY and abs(moved[2]) <= RETRY_THETA:
-                return best.alike
+        if best.checked_at is not None and not self._moved_since(best.checked_at):
+            return best.alike
         best.checked_at = self._odometry.copy()
         best.alike = False
         places = self.places
@@ -388,13 +389,11 @@ class Localizer:
         if len(places.path) == 0 or len(live) < MIN_POINTS:
             return False
         grid = places.grid
-        mine = grid.score(live, best.pose)
-        # The least score that would make a rival (the rule of _rival on one scan).
-        least = 1.0 - (RIVAL_FACTOR * (1.0 - mine) + RIVAL_MARGIN)
+        least = _least_as_well(grid.score(live, best.pose))
         path = places.path
-        here = int(np.argmin(np.hypot(*(path[:, :2] - best.pose[:2]).T)))
-        offset = relative(path[here], best.pose)  # the robot as it stands to the path
-        far = np.hypot(*(path[:, :2] - best.pose[:2]).T) > ALIAS_WINDOW
+        apart = np.hypot(*(path[:, :2] - best.pose[:2]).T)
+        offset = relative(path[np.argmin(apart)], best.pose)  # as the robot stands to the path
+        far = apart > ALIAS_WINDOW
         for sample in path[far]:  # one small search per metre of path, most pruned at once
             for turn in (0.0, math.pi):  # along the path either way
                 centre = compose(sample + (0.0, 0.0, turn), offset)
@@ -442,8 +441,20 @@ def _rival(h: Hypothesis, best: Hypothesis) -> bool:
     if h.fits < MIN_FITS:
         return h.score >= best.score
     n = min(len(h.scores), len(best.scores))
-    mine, theirs = np.mean(list(h.scores)[-n:]), np.mean(list(best.scores)[-n:])
-    return 1.0 - mine < RIVAL_FACTOR * (1.0 - theirs) + RIVAL_MARGIN
+    return _as_well(np.mean(list(h.scores)[-n:]), np.mean(list(best.scores)[-n:]))
+
+
+def _as_well(score: float, best: float) -> bool:
+    """Whether a place scoring ``score`` explains the scans about as well as one scoring
+    ``best``: it leaves fewer than :data:`RIVAL_FACTOR` times the share of points the best
+    leaves unexplained, plus :data:`RIVAL_MARGIN`."""
+    return 1.0 - score < RIVAL_FACTOR * (1.0 - best) + RIVAL_MARGIN
+
+
+def _least_as_well(best: float) -> float:
+    """The score above which a place explains the scans about as well as one scoring
+    ``best`` (:func:`_as_well`), for a search to prune below."""
+    return 1.0 - (RIVAL_FACTOR * (1.0 - best) + RIVAL_MARGIN)
 
 
 def _same(a: FloatArray, b: FloatArray) -> bool:
