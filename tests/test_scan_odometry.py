@@ -5,7 +5,7 @@ import math
 import numpy as np
 
 from vmp.config import MotionNoise, RegistrationConfig, ScanOdometryConfig
-from vmp.scan_odometry import ScanOdometry
+from vmp.scan_odometry import ScanOdometry, _percentile
 
 
 def odometry() -> ScanOdometry:
@@ -180,3 +180,14 @@ def test_the_scanner_mount_is_learned_from_turns():
     # The scanner's increment, as the filter gets it, swings sideways by the mount.
     expected = compose(compose(inverse(mount), step), mount)
     np.testing.assert_allclose(u, expected, atol=0.005)
+
+
+def test_the_noise_percentiles_are_numpys_to_the_last_bit():
+    # The learned noise scale must not move when the percentile is computed by hand.
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 49, 50, 51, 199, 200):
+        values = rng.exponential(size=n) * 10.0 ** rng.integers(-3, 4)
+        median, tail = np.percentile(values, [50.0, 95.0])
+        ordered = sorted(values.tolist())
+        assert _percentile(ordered, 0.5) == median
+        assert _percentile(ordered, 0.95) == tail

@@ -23,6 +23,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -122,6 +123,18 @@ class Result:
 
     def write(self, out: Path, resolution: float = 0.05) -> dict:
         """Write every output into the folder ``out``; returns the metrics."""
+        # Uniting the free space is most of the writing (the Intel part: 2.7 s of 4.2 s; ACES
+        # 5.0 of 7.9) and runs in GEOS, off the GIL: started first, it goes on while the rest
+        # is rasterised and written.
+        with ThreadPoolExecutor(1) as pool:
+            free_space = pool.submit(free_space_contours, self.polygons())
+            self._write_all(out, resolution, free_space)
+        metrics = self.metrics()
+        with atomic_write(out / "metrics.json", "w") as f:
+            json.dump(metrics, f, indent=1, default=float)
+        return metrics
+
+    def _write_all(self, out: Path, resolution: float, free_space: Future) -> None:
         write_tum(out / "trajectory.tum", self.stamps, self.trajectory)
         write_tum(out / "online.tum", self.stamps, self.online)
         write_tum(out / "odometry.tum", self.stamps, self.odometry)
@@ -133,27 +146,26 @@ class Result:
                  config_to_dict(self.config), self.trajectory)
         save_milestones(out / "milestones.npz", p.milestones)
         save_config(out / "config.yaml", self.config)
-        export_all(out, self, resolution)
-        metrics = self.metrics()
-        with atomic_write(out / "metrics.json", "w") as f:
-            json.dump(metrics, f, indent=1, default=float)
-        return metrics
+        export_all(out, self, resolution, free_space)
 
 
-def export_all(out: Path, result: Result, resolution: float, contours: bool = True) -> None:
-    """Grid (map_server, PNG, npy), contours and graph of a result."""
+def export_all(out: Path, result: Result, resolution: float,
+               contours: bool | Future = True) -> None:
+    """Grid (map_server, PNG, npy), contours and graph of a result. ``contours`` may be the
+    free-space union under way (:func:`free_space_contours` of the result's polygons)."""
     grid = result.grid(resolution)
     write_ros_map(out / "grid.yaml", grid)
     write_png(out / "grid.png", grid)
     with atomic_write(out / "grid.npy", "wb") as f:
         np.save(f, grid.cells, allow_pickle=False)
-    if contours:
-        geom = free_space_contours(result.polygons())
-        write_geojson(out / "contours.geojson", geom,
-                      {"what": "boundary of free space", "area_m2": round(geom.area, 3)})
     ms = result.pipeline.milestones
     write_graph_json(out / "graph.json", ms.ids, ms.poses, ms.stamps,
                      result.pipeline.back.graph.edges)
+    if contours is not False:  # last: the union may still be under way
+        geom = (contours.result() if isinstance(contours, Future)
+                else free_space_contours(result.polygons()))
+        write_geojson(out / "contours.geojson", geom,
+                      {"what": "boundary of free space", "area_m2": round(geom.area, 3)})
 
 
 INCOMPLETE = "INCOMPLETE"  # in a results folder from its creation until every file is written

@@ -175,7 +175,8 @@ class ScanOdometry:
         chi-square's (the tail where they slip)."""
         self._disagreement.append(d2 * self.noise_scale)  # as against the configured noise
         if len(self._disagreement) >= NOISE_MEMORY // 4:
-            median, tail = np.percentile(self._disagreement, [50.0, 95.0])
+            ordered = sorted(self._disagreement)
+            median, tail = _percentile(ordered, 0.5), _percentile(ordered, 0.95)
             self.noise_scale = float(np.clip(median / CHI2_3DOF_MEDIAN, 1.0, MAX_NOISE_SCALE))
             self.tail_scale = float(np.clip(tail / CHI2_3DOF_95, self.noise_scale,
                                             MAX_NOISE_SCALE))
@@ -246,6 +247,21 @@ class ScanOdometry:
         to_wheels = relative(at_wheels, check.pose)
         return bool(math.hypot(to_scans[0], to_scans[1]) + abs(to_scans[2])
                     < math.hypot(to_wheels[0], to_wheels[1]) + abs(to_wheels[2]))
+
+
+def _percentile(ordered: list[float], q: float) -> float:
+    """``numpy.percentile(values, 100 q)`` (linear interpolation, to the last bit) of values
+    given in ascending order. Once per scan on 200 values numpy's took 40 microseconds, most
+    of it the call's own overhead: a sixth of scan odometry's time outside ICP."""
+    n = len(ordered)
+    at = (n - 1) * q
+    below = math.floor(at)
+    if below >= n - 1:
+        return ordered[-1]
+    a, b = ordered[below], ordered[below + 1]
+    share = at - below
+    # numpy's lerp: from the nearer end, so that share 1 gives b exactly.
+    return b - (b - a) * (1.0 - share) if share >= 0.5 else a + (b - a) * share
 
 
 def _sees_all(cov: FloatArray) -> bool:
