@@ -62,6 +62,26 @@ LINKED = 2  # a candidate this near (in ids) to a milestone the recent path is j
 #             needs no search: the prediction already knows where it is
 
 
+class _Submap:
+    """A candidate's submap as the search needs it: the segments it was made of, its search
+    grid, and its registration reference, built when a search first finds something there
+    (about a third of the searches on the Intel part find nothing, and the reference, a
+    k-d tree and a normal per point, costs more to build than the grid)."""
+
+    def __init__(self, segments: tuple[int, ...], points: FloatArray) -> None:
+        self.segments = segments
+        self.grid = SearchGrid(points, RESOLUTION, SIGMA, DEPTH, MAX_WINDOW_XY)
+        self._points: FloatArray | None = points
+        self._reference: Reference | None = None
+
+    @property
+    def reference(self) -> Reference:
+        if self._reference is None:
+            self._reference = Reference(self._points)
+            self._points = None  # the reference holds them
+        return self._reference
+
+
 class Find:
     """A loop found: the milestone, the live scan's pose in its frame, the search's figures."""
 
@@ -85,7 +105,7 @@ class LoopSearch:
         self.submap_segments = submap_segments
         self.submap_points = submap_points
         self.stats = stats
-        self._grids: OrderedDict[int, tuple[tuple[int, ...], SearchGrid, Reference]] = \
+        self._grids: OrderedDict[int, _Submap] = \
             OrderedDict()
         self._searched: int | None = None  # the anchor of the last search
 
@@ -147,11 +167,11 @@ class LoopSearch:
                 out.append(found)
         return out
 
-    def _grid(self, mid: int) -> tuple[SearchGrid, Reference] | None:
+    def _grid(self, mid: int) -> _Submap | None:
         cached = self._grids.get(mid)
-        if cached is not None and cached[0] == self.submap_segments(mid):
+        if cached is not None and cached.segments == self.submap_segments(mid):
             self._grids.move_to_end(mid)
-            return cached[1], cached[2]
+            return cached
         held = self.submap_points(mid)
         if held is None:
             return None
@@ -159,25 +179,24 @@ class LoopSearch:
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= GRID_RADIUS]
         if len(pts) < 20:
             return None
-        grid = SearchGrid(pts, RESOLUTION, SIGMA, DEPTH, MAX_WINDOW_XY)
-        ref = Reference(pts)
-        self._grids[mid] = (segments, grid, ref)
+        built = self._grids[mid] = _Submap(segments, pts)
         if len(self._grids) > CACHED_GRIDS:
             self._grids.popitem(last=False)
-        return grid, ref
+        return built
 
     def _search_one(self, mid: int, points: FloatArray, all_points: FloatArray,
                     center: FloatArray, wxy: float, wth: float) -> Find | None:
         """The live scan in milestone ``mid``'s submap, searched within the window around
         ``center`` (a pose in its frame), verified; or None."""
-        built = self._grid(mid)
-        if built is None:
+        submap = self._grid(mid)
+        if submap is None:
             return None
-        grid, ref = built
+        grid = submap.grid
         best = search(grid, points, center, wxy, wth, MIN_SCORE)
         if best is None:
             self.stats["loop searches below the score"] += 1
             return None
+        ref = submap.reference
         # Refined with the live points that fall inside the submap's reach: beyond it (ACES's
         # beams reach 50 m down a corridor) nothing can match, and counted against the fit
         # they failed finds that two searches agreed on to 0.1 m (scans 6703-6741).
