@@ -105,8 +105,7 @@ class LoopSearch:
         self.submap_segments = submap_segments
         self.submap_points = submap_points
         self.stats = stats
-        self._grids: OrderedDict[int, _Submap] = \
-            OrderedDict()
+        self._grids: OrderedDict[int, _Submap] = OrderedDict()
         self._searched: int | None = None  # the anchor of the last search
 
     def due(self, anchor: int) -> bool:

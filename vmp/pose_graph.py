@@ -44,8 +44,8 @@ UNDAMPED = 1e-5
 # How SuperLU factorises the normal equations: a fill-reducing order of H's own pattern, and no
 # row pivoting, which a symmetric positive definite matrix does not need (a singular one, an
 # unconstrained node, still fails: a zero pivot). On fr079's last graph (1,287 unknowns) this
-# halves the fill, 43,259 -> 31,516 entries of L and U, and takes 1.05 ms instead of 1.47; fr079
-# factorises some 10,000 times (docs/benchmarks.md).
+# cuts the entries of L and U by a quarter (43,259 -> 31,516) and takes 1.05 ms instead of
+# 1.47; fr079 factorises some 10,000 times (docs/benchmarks.md).
 SPD = {"permc_spec": "MMD_AT_PLUS_A", "diag_pivot_thresh": 0.0}
 
 
