@@ -390,13 +390,12 @@ class Localizer:
             return best.alike
         best.checked_at = self._odometry.copy()
         best.alike = False
-        places = self.places
+        path = self.places.path
         live = search_points(self._points)
-        if len(places.path) == 0 or len(live) < MIN_POINTS:
+        if len(path) == 0 or len(live) < MIN_POINTS:
             return False
-        grid = places.grid
+        grid = self.places.grid
         least = _least_as_well(grid.score(live, best.pose))
-        path = places.path
         apart = np.hypot(*(path[:, :2] - best.pose[:2]).T)
         offset = relative(path[np.argmin(apart)], best.pose)  # as the robot stands to the path
         far = apart > ALIAS_WINDOW

@@ -166,7 +166,7 @@ class LoopSearch:
                 out.append(found)
         return out
 
-    def _grid(self, mid: int) -> _Submap | None:
+    def _submap(self, mid: int) -> _Submap | None:
         cached = self._grids.get(mid)
         if cached is not None and cached.segments == self.submap_segments(mid):
             self._grids.move_to_end(mid)
@@ -187,7 +187,7 @@ class LoopSearch:
                     center: FloatArray, wxy: float, wth: float) -> Find | None:
         """The live scan in milestone ``mid``'s submap, searched within the window around
         ``center`` (a pose in its frame), verified; or None."""
-        submap = self._grid(mid)
+        submap = self._submap(mid)
         if submap is None:
             return None
         grid = submap.grid

@@ -149,10 +149,9 @@ class Result:
         export_all(out, self, resolution, free_space)
 
 
-def export_all(out: Path, result: Result, resolution: float,
-               contours: bool | Future = True) -> None:
-    """Grid (map_server, PNG, npy), contours and graph of a result. ``contours`` may be the
-    free-space union under way (:func:`free_space_contours` of the result's polygons)."""
+def export_all(out: Path, result: Result, resolution: float, free_space: Future) -> None:
+    """Grid (map_server, PNG, npy), graph and contours of a result; ``free_space`` is the
+    union of its polygons under way (:func:`free_space_contours`), written last."""
     grid = result.grid(resolution)
     write_ros_map(out / "grid.yaml", grid)
     write_png(out / "grid.png", grid)
@@ -161,11 +160,9 @@ def export_all(out: Path, result: Result, resolution: float,
     ms = result.pipeline.milestones
     write_graph_json(out / "graph.json", ms.ids, ms.poses, ms.stamps,
                      result.pipeline.back.graph.edges)
-    if contours is not False:  # last: the union may still be under way
-        geom = (contours.result() if isinstance(contours, Future)
-                else free_space_contours(result.polygons()))
-        write_geojson(out / "contours.geojson", geom,
-                      {"what": "boundary of free space", "area_m2": round(geom.area, 3)})
+    geom = free_space.result()
+    write_geojson(out / "contours.geojson", geom,
+                  {"what": "boundary of free space", "area_m2": round(geom.area, 3)})
 
 
 INCOMPLETE = "INCOMPLETE"  # in a results folder from its creation until every file is written
