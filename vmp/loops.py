@@ -28,7 +28,7 @@ from milestones.manager import MilestoneManager
 from vmp.branch_bound import Match, SearchGrid, search, search_points
 from vmp.config import MappingConfig
 from vmp.registration import Reference, Registration, fits, register
-from vmp.types import FloatArray, ScanFrame, compose, relative, transform_points
+from vmp.types import FloatArray, ScanFrame, relative, transform_points
 
 __all__ = ["Find", "LoopSearch"]
 
@@ -53,11 +53,6 @@ MIN_SCORE = 0.55  # mean likelihood of the live points at the find
 MAX_RATIO = 0.9  # the best pose elsewhere in the window scores at most this share of it
 SEPARATION_XY = 0.5  # "elsewhere": this far from the find (m) ...
 SEPARATION_THETA = math.radians(5.0)  # ... or turned this much
-# Two submaps' best poses for one scan, placed in the map frame, are the same place when
-# they lie within this (m, rad) of each other: the submaps of one stretch, mapped in one pass,
-# agree to centimetres, but each search's best pose is its grid's cell (0.1 m).
-APART_XY = 1.0
-APART_THETA = math.radians(10.0)
 MAX_SHIFT = 0.3  # ICP may move this far from the find (m) ...
 MAX_TURN = math.radians(5.0)  # ... and turn this much
 FREE_VARIANCE = 1.0  # a direction the lines' covariance leaves this open (m^2) is free
@@ -94,7 +89,6 @@ class Find:
                  ratio: float, signature: float) -> None:
         self.milestone, self.registration = milestone, registration
         self.score, self.ratio, self.signature = score, ratio, signature
-        self.at: FloatArray | None = None  # the robot's pose in the map frame, once placed
 
 
 class LoopSearch:
@@ -113,7 +107,6 @@ class LoopSearch:
         self.stats = stats
         self._grids: OrderedDict[int, _Submap] = OrderedDict()
         self._searched: int | None = None  # the anchor of the last search
-        self._peak: Match | None = None  # the last submap search's best pose, found or not
 
     def due(self, anchor: int) -> bool:
         """Whether to search now: once per anchor, at its first scan (a new milestone, so
@@ -164,39 +157,14 @@ class LoopSearch:
         if len(points) < 20:
             return []
         out = []
-        peaks = []  # each submap's best pose (map frame) and its score, found or not
         for mid, signature, _ in ranked[:CANDIDATES]:
             self.stats["loop searches"] += 1
-            ms_pose = self.milestones.pose(mid)
-            center = relative(ms_pose, pose)
-            self._peak = None
+            center = relative(self.milestones.pose(mid), pose)
             found = self._search_one(mid, points, frame.points(), center, *windows[mid])
-            if self._peak is not None:
-                peaks.append((compose(ms_pose, self._peak.pose), self._peak.score))
             if found is not None:
                 found.signature = signature
-                found.at = compose(ms_pose, found.registration.pose)
                 out.append(found)
-        return [f for f in out if not self._elsewhere(f, peaks)]
-
-    def _elsewhere(self, find: Find, peaks: list[tuple[FloatArray, float]]) -> bool:
-        """Whether another submap searched for the same scan holds a pose about as good
-        (:data:`MAX_RATIO` of the find's score or more) that puts the robot elsewhere in the
-        map (:data:`APART_XY`, :data:`APART_THETA`): each search's rival test looks only
-        inside its own submap, and a view that several places explain is no loop.
-
-        ACES, after a long way round (the drift's window capped at 7 m): one submap's
-        search placed the scan 7.2 m from the prediction, scoring 0.59 with no rival in that
-        submap, while three other submaps searched for the same scan peaked at 0.64-0.70
-        elsewhere; a second find of the same kind confirmed it, and the map came out with a
-        corridor 7.5 m off (docs/benchmarks.md, seventh session)."""
-        for at, score in peaks:
-            d = relative(find.at, at)
-            if (score >= MAX_RATIO * find.score
-                    and (math.hypot(d[0], d[1]) > APART_XY or abs(d[2]) > APART_THETA)):
-                self.stats["loop searches ambiguous across submaps"] += 1
-                return True
-        return False
+        return out
 
     def _submap(self, mid: int) -> _Submap | None:
         cached = self._grids.get(mid)
@@ -223,7 +191,7 @@ class LoopSearch:
         if submap is None:
             return None
         grid = submap.grid
-        best = self._peak = search(grid, points, center, wxy, wth, MIN_SCORE)
+        best = search(grid, points, center, wxy, wth, MIN_SCORE)
         if best is None:
             self.stats["loop searches below the score"] += 1
             return None
