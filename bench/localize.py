@@ -38,7 +38,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from kummerle import logs
-from report import machine, write_section
+from report import machine, whole, write_section
 
 from drivers import open_source
 from drivers.splice import carried
@@ -88,7 +88,7 @@ def sim_run(name: str, smap: MapData, seed: int) -> dict:
     joined = carried([frames[a:a + STRETCH], frames[b:b + STRETCH]])
     ref = Reference(np.vstack([truth[a:a + STRETCH], truth[b:b + STRETCH]]), "ground truth",
                     True)
-    res = LocalizationRun(smap, FrameList(joined, name, ref)).run()
+    res = whole(LocalizationRun(smap, FrameList(joined, name, ref)).run())
     err = res.errors()
     loc = res.localized
     starts = np.flatnonzero(loc & ~np.concatenate([[False], loc[:-1]]))
@@ -105,7 +105,7 @@ def sim_run(name: str, smap: MapData, seed: int) -> dict:
 def simulated(names: list[str], runs: int) -> list[dict]:
     rows = []
     for name in names:
-        mapped = MappingRun(open_source(name)).run()
+        mapped = whole(MappingRun(open_source(name)).run())
         smap = saved(mapped)
         results = [sim_run(name, smap, 100 + i) for i in range(runs)]
         both = [r["start"] for r in results] + [r["kidnap"] for r in results]
@@ -141,9 +141,9 @@ def real(only: str | None) -> list[dict]:
         relations = read_relations(rel_path)
         t0 = frames[half].stamp
         inside = relations[(np.minimum(relations[:, 0], relations[:, 1]) >= t0)]
-        full = MappingRun(FrameList(frames, name)).run()
-        first = MappingRun(FrameList(frames[:half], name)).run()
-        res = LocalizationRun(saved(first), FrameList(frames[half:], name)).run()
+        full = whole(MappingRun(FrameList(frames, name)).run())
+        first = whole(MappingRun(FrameList(frames[:half], name)).run())
+        res = whole(LocalizationRun(saved(first), FrameList(frames[half:], name)).run())
         loc = res.localized
         e_full = relation_error(full.stamps, full.trajectory, inside)
         e_loc = relation_error(res.stamps[loc], res.poses[loc], inside)
@@ -156,9 +156,10 @@ def real(only: str | None) -> list[dict]:
         map_rate = full.scans / full.mapping_time
         # A second session: the second half mapped on in the first half's map, and the two
         # halves mapped apart and merged (what 'vmp map --continue' and 'vmp merge' do).
-        cont = MappingRun(FrameList(frames[half:], name), saved=saved(first)).run()
-        second = MappingRun(FrameList(frames[half:], name)).run()
-        merged = MappingRun(FrameList(saved(second).frames(), name), saved=saved(first)).run()
+        cont = whole(MappingRun(FrameList(frames[half:], name), saved=saved(first)).run())
+        second = whole(MappingRun(FrameList(frames[half:], name)).run())
+        merged = whole(MappingRun(FrameList(saved(second).frames(), name),
+                                  saved=saved(first)).run())
         e_all = relation_error(full.stamps, full.trajectory, relations)
         e_cont = relation_error(cont.stamps, cont.trajectory, relations)
         e_merged = relation_error(merged.stamps, merged.trajectory, relations)

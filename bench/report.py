@@ -25,6 +25,15 @@ def machine() -> str:
             f"NumPy {np.__version__}")
 
 
+def whole(result):
+    """``result`` of a run, or the bench ends: a run that Ctrl-C or SIGTERM stopped early
+    returns the scans so far, and figures from a part of a log would be wrong ones."""
+    if getattr(result, "interrupted", None):
+        raise SystemExit(f"bench: a run was interrupted by {result.interrupted}; no figures "
+                         "written")
+    return result
+
+
 def median_time(fn: Callable[[], object], repeat: int) -> tuple[float, list[float]]:
     """Median wall time of ``repeat`` calls and all the times."""
     times = []

@@ -23,7 +23,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from kummerle import logs
-from report import machine, write_section
+from report import machine, whole, write_section
 
 from drivers import open_source
 from vmp.evaluate import read_relations, relation_error
@@ -36,7 +36,7 @@ def starts_of(name: str, log: Path, relations: Path, starts: int) -> list[dict]:
     rel = read_relations(relations)
     rows = []
     for first in range(starts):
-        result = MappingRun(FrameList(frames[first:], name)).run()
+        result = whole(MappingRun(FrameList(frames[first:], name)).run())
         err = relation_error(result.stamps, result.trajectory, rel)
         metrics = result.metrics()
         row = {"start": first, "trans": err.trans_mean, "std": err.trans_std,
