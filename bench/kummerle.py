@@ -41,14 +41,18 @@ PUBLISHED = {"intel": (0.0229, 0.453, 0.031, 1.3), "aces": (0.0375, 0.373, 0.044
              "fr079": (0.0452, 0.538, 0.056, 0.6)}
 
 
-def logs() -> list[tuple[str, Path, Path]]:
-    """(name, log, relations) for every folder of the data that holds a relations file."""
+def logs(only: str | None = None) -> list[tuple[str, Path, Path]]:
+    """(name, log, relations) for every folder of the data that holds a relations file (only
+    the one named ``only``, when given); the bench ends with a message when there is none."""
     out = []
     for rel in sorted(DATA.glob("*/*.relations")):
         found = [p for p in rel.parent.iterdir()
                  if p.suffixes[-2:] == [".clf", ".gz"] or p.suffix == ".clf"]
-        if found:
+        if found and only in (None, rel.stem):
             out.append((rel.stem, found[0], rel))
+    if not out:
+        raise SystemExit(f"no log with a relations file under {DATA}"
+                         + (f" named {only}" if only else ""))
     return out
 
 
@@ -133,10 +137,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="runs per log, median time kept")
     ap.add_argument("--no-kiss", action="store_true", help="do not time KISS-ICP")
     args = ap.parse_args()
-    found = [entry for entry in logs() if args.only in (None, entry[0])]
-    if not found:
-        raise SystemExit(f"no log with a relations file under {DATA}"
-                         + (f" named {args.only}" if args.only else ""))
+    found = logs(args.only)
     with tempfile.TemporaryDirectory() as tmp:
         rows = [measure(name, log, rel, args.repeat, not args.no_kiss, Path(tmp))
                 for name, log, rel in found]

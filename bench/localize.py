@@ -133,9 +133,7 @@ def simulated(names: list[str], runs: int) -> list[dict]:
 
 def real(only: str | None) -> list[dict]:
     rows = []
-    for name, log, rel_path in logs():
-        if only not in (None, name):
-            continue
+    for name, log, rel_path in logs(only):
         frames = list(open_source(str(log)))
         half = len(frames) // 2
         relations = read_relations(rel_path)

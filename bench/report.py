@@ -8,12 +8,14 @@ import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
 from vmp.fileio import atomic_write
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
+R = TypeVar("R")  # a run's result (vmp.results.Result, vmp.localization.LocalizationResult)
 HEADER = "# Benchmarks\n\nFigures written by the scripts in `bench/`; each section says how to " \
          "rerun it.\nTimes are medians of repeated runs on the machine named in the section.\n"
 
@@ -25,7 +27,7 @@ def machine() -> str:
             f"NumPy {np.__version__}")
 
 
-def whole(result):
+def whole(result: R) -> R:
     """``result`` of a run, or the bench ends: a run that Ctrl-C or SIGTERM stopped early
     returns the scans so far, and figures from a part of a log would be wrong ones."""
     if getattr(result, "interrupted", None):

@@ -61,11 +61,17 @@ def table(found: dict[str, list[dict]], starts: int) -> str:
              + " | median | worst | loop edges (down-weighted) |",
              "|---|" + "---|" * (starts + 3)]
     for name, rows in found.items():
-        trans = [r["trans"] for r in rows]
+        median, _, worst = spread(rows)
         loops = ", ".join(f"{r['loops']} ({r['down']})" for r in rows)
-        lines.append(f"| {name} | " + " | ".join(f"{t:.4f}" for t in trans)
-                     + f" | {statistics.median(trans):.4f} | {max(trans):.4f} | {loops} |")
+        lines.append(f"| {name} | " + " | ".join(f"{r['trans']:.4f}" for r in rows)
+                     + f" | {median:.4f} | {worst:.4f} | {loops} |")
     return "\n".join(lines)
+
+
+def spread(rows: list[dict]) -> tuple[float, float, float]:
+    """The median, best and worst translational error over the starts."""
+    trans = [r["trans"] for r in rows]
+    return statistics.median(trans), min(trans), max(trans)
 
 
 def main() -> None:
@@ -76,16 +82,12 @@ def main() -> None:
     args = ap.parse_args()
     if args.starts < 1:
         ap.error("--starts: at least 1")
-    found = {}
-    for name, log, relations in logs():
-        if args.only in (None, name):
-            found[name] = starts_of(name, log, relations, args.starts)
-    if not found:
-        sys.exit("no log with a relations file in ../shared/data (or none named by --only)")
+    found = {name: starts_of(name, log, relations, args.starts)
+             for name, log, relations in logs(args.only)}
     for name, rows in found.items():
-        trans = [r["trans"] for r in rows]
-        print(f"{name}: median {statistics.median(trans):.4f} m, best {min(trans):.4f}, "
-              f"worst {max(trans):.4f} over {len(rows)} starts")
+        median, best, worst = spread(rows)
+        print(f"{name}: median {median:.4f} m, best {best:.4f}, worst {worst:.4f} over "
+              f"{len(rows)} starts")
     if args.only is None:
         write_section("robustness", table(found, args.starts))
 
