@@ -9,6 +9,7 @@ from collections import deque
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from conftest import mapped
 
 import vmp.localizer as localizer_module
@@ -125,3 +126,45 @@ def test_a_trusted_place_is_registered_once_the_robot_moved_a_decimetre_and_scor
     assert len(calls) < 0.5 * len(frames)  # every scan: at least one a scan
     err = res.errors()[loc]
     assert float(np.sqrt(np.mean(err**2))) < 0.1
+
+
+def _trusted(score: float, declared_at: float) -> Hypothesis:
+    h = _hypothesis(score, 20, declared=True)
+    h.trusted = True
+    h.reference = declared_at
+    return h
+
+
+def test_a_trusted_place_gives_way_only_when_doubted_and_another_explains_clearly_better():
+    # Carried a few metres along an aisle: the old place still fits, but explains the scans
+    # clearly worse than when it was declared, and a place followed since explains them
+    # clearly better.
+    old = _trusted(0.93, declared_at=0.99)
+    right = _hypothesis(0.995, MIN_FITS)
+    loc = Localizer(places=_NoLookAlikes())
+    assert loc._doubted(old)
+    loc.hypotheses = [old, right]
+    assert loc._decide() is not State.LOCALIZED or not old.trusted
+    assert not old.trusted and loc._lost
+    # A look-alike that explains the scans only about as well does not unseat it ...
+    old = _trusted(0.93, declared_at=0.99)
+    loc.hypotheses = [old, _hypothesis(0.95, MIN_FITS)]
+    loc._lost = False
+    assert loc._decide() is State.LOCALIZED and old.trusted
+    # ... nor a clearly better one that has not yet fitted MIN_FITS scans.
+    loc.hypotheses = [old, _hypothesis(0.995, MIN_FITS - 1)]
+    assert loc._decide() is State.LOCALIZED and old.trusted
+    # A place explaining the scans as well as when declared is not doubted.
+    assert not loc._doubted(_trusted(0.985, declared_at=0.99))
+
+
+def test_a_doubted_place_that_finds_nothing_better_is_doubted_again_only_after_a_further_fall():
+    old = _trusted(0.80, declared_at=0.99)
+    loc = Localizer(places=_NoLookAlikes())
+    loc.hypotheses = [old]
+    for _ in range(localizer_module.DOUBT_SEARCHES):
+        assert loc._doubted(old)
+        loc._challenge(old)  # no submap here: nothing to find
+    assert not loc._doubted(old) and old.reference == pytest.approx(0.80)
+    old.scores = deque([0.5] * 20, maxlen=old.scores.maxlen)
+    assert loc._doubted(old)
