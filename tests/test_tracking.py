@@ -146,6 +146,9 @@ def test_a_trusted_place_gives_way_only_when_doubted_and_another_explains_clearl
     loc.hypotheses = [old, right]
     assert loc._decide() is not State.LOCALIZED or not old.trusted
     assert not old.trusted and loc._lost
+    # It must fit again scan after scan before it may resume.
+    assert old.streak == 0
+    assert loc._decide() is not State.LOCALIZED
     # A look-alike that explains the scans only about as well does not unseat it ...
     old = _trusted(0.93, declared_at=0.99)
     loc.hypotheses = [old, _hypothesis(0.95, MIN_FITS)]

@@ -425,6 +425,10 @@ class Localizer:
             if not self._outdone(trusted):
                 return State.LOCALIZED
             self.stats["times a doubted place gave way"] += 1
+            # As after a miss: to resume, it must fit again scan after scan, and be compared
+            # over those scans (over a longer window its scores from before the robot was
+            # carried would bring it back at once).
+            trusted.streak = 0
         if trusted is not None:
             # Lost: the place must win again against the others, as at the start (a robot
             # carried to a look-alike place may fit the old one again).
