@@ -127,15 +127,6 @@ class Places:
         return place
 
     @property
-    def reference(self) -> Reference:
-        """The registration reference (built on first use: most submaps a search looks at
-        are rejected by the branch-and-bound search alone, and a reference of 13,000 points
-        costs 17 ms, about what the search does)."""
-        if self._reference is None:
-            self._reference = Reference(self.points)
-        return self._reference
-
-    @property
     def grid(self) -> SearchGrid:
         """One search grid of the whole map, in the map frame (built on first use): for
         look-alikes anywhere along the path, where no milestone may be (a corridor's
