@@ -343,8 +343,9 @@ def test_corrupted_session_measures_what_gets_through():
     # bench/serial_integrity.py measures 180 of 1,028 corrupted turns (17.5 %), and this
     # session of ~121 gave 16-31 over 16 runs of seed 3 (when the driver's reads fall
     # changes which turns a flip lands in). 0.25 was two standard deviations above that rate
-    # and failed once in CI (31 of 121); the bound is four (p = 0.175, n = 121: 21 +- 4).
-    assert t["wrong"] <= 0.33 * t["corrupted"]
+    # and failed once in CI (31 of 121); the bound is about four (p = 0.175, n = 121:
+    # 21 +- 4.2, the bound 37.5).
+    assert t["wrong"] <= 0.31 * t["corrupted"]
     # never a garbled turn: a few beams, one per node whose distance bits were hit (or that
     # was lost where a near point's parallax allowance covers the gap)
     assert max(wrong_beams, default=0) <= 8
