@@ -341,8 +341,8 @@ def test_corrupted_session_measures_what_gets_through():
     assert t["intact_delivered"] >= 0.99 * t["intact"]
     # No checksum: single flips in distance bits pass. The share is a rate, not a constant:
     # bench/serial_integrity.py measures 180 of 1,028 corrupted turns (17.5 %), and this
-    # session of ~121 gave 16-31 over 16 runs of seed 3 (when the driver's reads fall
-    # changes which turns a flip lands in). 0.25 was two standard deviations above that rate
+    # session of ~121 gave 16-31 over 16 runs of the same seed (the outcome varies from run
+    # to run; why is not yet known). 0.25 was two standard deviations above that rate
     # and failed once in CI (31 of 121); the bound is about four (p = 0.175, n = 121:
     # 21 +- 4.2, the bound 37.5).
     assert t["wrong"] <= 0.31 * t["corrupted"]
