@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -97,8 +98,8 @@ TRACK_EVERY_XY = 0.1
 TRACK_EVERY_THETA = math.radians(5.0)
 SAME_XY = 0.3  # a proposal this near a hypothesis (m) ...
 SAME_THETA = math.radians(5.0)  # ... and turned this little agrees with it
-# Searches made while the place trusted is doubted before its reference is lowered to what it
-# scores now.
+# Searches made while the place trusted is doubted before its reference score is lowered to
+# what it scores now.
 DOUBT_SEARCHES = 3
 MAX_HYPOTHESES = 8  # the most places followed at once (the lowest scores dropped)
 WINDOW = 20  # scans over which hypotheses are compared
@@ -152,7 +153,7 @@ class Hypothesis:
     alike: bool = False  # whether that search found a look-alike
     # How well the place explained the scans when it was declared (its mean score then), and
     # the searches made since while it explained them less well (:meth:`Localizer._doubted`).
-    reference: float = 0.0
+    reference_score: float = 0.0
     doubts: int = 0
 
     @property
@@ -251,29 +252,20 @@ class Localizer:
 
     def _challenge(self, trusted: Hypothesis) -> None:
         """Search around the place trusted, doubted, for a pose that explains the scan clearly
-        better (a rack bay further along the aisle), and follow it. The signatures' search
-        would find places anywhere (the simulated warehouse, seed 109: a robot carried 14.6 m
-        still fits the old place), but costs 0.15 s a search (submaps built around the map),
-        and real logs doubt their place now and then where the first half's map is thin:
-        tracking ACES's second half ran at 177 scans a second with every doubted search by
-        signature, 355 with the first of each doubt, 584 with none (577 before any doubt)."""
+        better (a rack bay further along the aisle), and follow it. (The signatures' search
+        would find places anywhere, but costs about 0.15 s, and real logs doubt their place
+        now and then where the map is thin: it cut tracking on ACES's second half to a third
+        of its speed; docs/benchmarks.md.)"""
         self.stats["searches while doubted"] += 1
         trusted.doubts += 1
         if trusted.doubts >= DOUBT_SEARCHES:
             # Nothing found explains the scans better: the place explains what the map holds
             # here (a room it never saw), and only a further fall is doubted.
-            trusted.reference = trusted.score
+            trusted.reference_score = trusted.score
             trusted.doubts = 0
-        place = trusted.place
-        live = search_points(self._points)
-        if place is None or len(live) < MIN_POINTS:
-            return
-        center = relative(place.pose, trusted.pose)
-        mine = place.grid.score(live, center)
-        other = search(place.grid, live, center, ALIAS_WINDOW, ALIAS_TURN,
-                       _least_as_well(mine), exclude=(center, *ALIAS_APART))
-        if other is not None and _clearly_better(other.score, mine):
-            self._follow(compose(place.pose, other.pose), other.score)
+        found = self._near(trusted, _least_as_well)
+        if found is not None and _clearly_better(found[1], found[2]):
+            self._follow(found[0], found[1])
 
     # ---- hypotheses ------------------------------------------------------------------------
 
@@ -388,15 +380,23 @@ class Localizer:
         """Whether another pose near ``h`` explains this scan about as well (the search
         only ever looks around the milestones, and a corridor of pilasters may hold none
         where the robot is)."""
+        found = self._near(h, lambda mine: 0.0)
+        return found is not None and _as_well(found[1], found[2])
+
+    def _near(self, h: Hypothesis, least: Callable[[float], float]
+              ) -> tuple[FloatArray, float, float] | None:
+        """The best pose within :data:`ALIAS_WINDOW` of ``h`` and at least
+        :data:`ALIAS_APART` from it (map frame) where this scan scores ``least(mine)`` or
+        more, that score and ``mine`` (the scan's score at ``h``); None when there is none."""
         place = h.place or self.places.nearest(h.pose)
         live = search_points(self._points)
         if place is None or len(live) < MIN_POINTS:
-            return False
+            return None
         center = relative(place.pose, h.pose)
         mine = place.grid.score(live, center)
-        other = search(place.grid, live, center, ALIAS_WINDOW, ALIAS_TURN,
+        other = search(place.grid, live, center, ALIAS_WINDOW, ALIAS_TURN, least(mine),
                        exclude=(center, *ALIAS_APART))
-        return other is not None and _as_well(other.score, mine)
+        return None if other is None else (compose(place.pose, other.pose), other.score, mine)
 
     @staticmethod
     def _doubted(h: Hypothesis) -> bool:
@@ -405,7 +405,7 @@ class Localizer:
         aisle still fits the old place, scan after scan (the simulated warehouse: 3.4 m off,
         scoring 0.73 and then 0.93-0.96 where the right place scores 0.99), and its usual
         score follows it down; the places proposed meanwhile may show where it is."""
-        return _clearly_better(h.reference, h.score)
+        return _clearly_better(h.reference_score, h.score)
 
     def _outdone(self, trusted: Hypothesis) -> bool:
         """Whether another place followed explains the last scans clearly better than the
@@ -448,25 +448,17 @@ class Localizer:
             # after a kidnap to another stretch of its pilastered corridor.)
             return self._declare(resumed, "times the lost place resumed")
         best = max(fitting, key=lambda h: h.score)
-        state = self._check(best)
-        if state is State.LOCALIZED:
-            return self._declare(best, "times localized")
-        return waiting if state is None else state
-
-    def _check(self, best: Hypothesis) -> State | None:
-        """Whether ``best`` may be declared (LOCALIZED), another place explains the scans
-        about as well (AMBIGUOUS), or it has not yet fitted long enough (None)."""
         if any(h is not best and _rival(h, best) for h in self.hypotheses):
             return State.AMBIGUOUS
         if best.searches < MIN_SEARCHES or best.fits < MIN_FITS or best.score < MIN_SCORE:
-            return None
+            return waiting
         if self._aliased(best):
             self.stats["places aliased nearby"] += 1
             return State.AMBIGUOUS
         if self._elsewhere(best):
             self.stats["places alike along the path"] += 1
             return State.AMBIGUOUS
-        return State.LOCALIZED
+        return self._declare(best, "times localized")
 
     def _elsewhere(self, best: Hypothesis) -> bool:
         """Whether the scan fits about as well somewhere along the saved path far from
@@ -527,7 +519,7 @@ class Localizer:
         places, so none of them could gain a find, and following them would cost a
         registration a scan each."""
         best.trusted = best.declared = True
-        best.reference = best.score
+        best.reference_score = best.score
         best.doubts = 0
         self._lost = False
         self.hypotheses = [best]
