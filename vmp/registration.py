@@ -134,18 +134,18 @@ def register(reference: Reference, points: FloatArray, initial: FloatArray,
     where that leaves a direction free and ``corners`` allows, again with corner points
     matched point to point."""
     pts = np.asarray(points, dtype=np.float64)
-    reg, H, wsum = _icp(reference, pts, np.asarray(initial, dtype=np.float64), False)
-    if (corners and reference.corner.any() and np.isfinite(reg.rms)
-            and _free_directions(H, wsum)):
-        with_corners, _, _ = _icp(reference, pts, reg.pose, True)
+    reg, free = _icp(reference, pts, np.asarray(initial, dtype=np.float64), False)
+    if corners and free and reference.corner.any():
+        with_corners, _ = _icp(reference, pts, reg.pose, True)
         if np.isfinite(with_corners.rms):
             return replace(with_corners, by_corners=True)
     return reg
 
 
 def _icp(reference: Reference, pts: FloatArray, initial: FloatArray,
-         corners: bool) -> tuple[Registration, FloatArray, float]:
-    """One ICP run from ``initial``; the registration, its last ``H`` and weight sum."""
+         corners: bool) -> tuple[Registration, list[FloatArray]]:
+    """One ICP run from ``initial``; the registration and the directions of translation its
+    fit leaves free (:func:`_free_directions`; none when nothing was matched)."""
     x, y, th = (float(v) for v in initial)
     gate = START_DISTANCE
     converged = False
@@ -207,10 +207,12 @@ def _icp(reference: Reference, pts: FloatArray, initial: FloatArray,
         if max(abs(dx), abs(dy), abs(dth)) < TOLERANCE:
             converged = True
             break
+    fitted = math.isfinite(rms) and wsum > 0
+    free = _free_directions(H, wsum) if fitted else []
     reg = Registration(pose=np.array([x, y, th]), rms=rms, inliers=inliers,
-                       covariance=_covariance(H, wsum, rms), iterations=it,
-                       converged=converged)
-    return reg, H, wsum
+                       covariance=_covariance(H, rms, free) if fitted else _unfitted(),
+                       iterations=it, converged=converged)
+    return reg, free
 
 
 def _solve_symmetric(H: FloatArray, g: FloatArray) -> tuple[float, float, float] | None:
@@ -239,15 +241,19 @@ def _free_directions(H: FloatArray, wsum: float) -> list[FloatArray]:
             if amount < MIN_CONSTRAINT or amount < DEGENERATE_SHARE * wsum]
 
 
-def _covariance(H: FloatArray, wsum: float, rms: float) -> FloatArray:
-    """``s^2 H^-1``, with degenerate and unconstrained directions opened up, and a floor."""
+def _unfitted() -> FloatArray:
+    """The covariance of a registration that matched nothing: unconstrained."""
+    return np.diag([MAX_SIGMA**2] * 3)
+
+
+def _covariance(H: FloatArray, rms: float, free: list[FloatArray]) -> FloatArray:
+    """``s^2 H^-1``, with the ``free`` directions and unconstrained ones opened up, and a
+    floor."""
     big = MAX_SIGMA**2
-    if not np.isfinite(rms) or wsum <= 0:
-        return np.diag([big, big, big])
     sigma2 = max(rms, MIN_SIGMA_XY) ** 2 * COVARIANCE_SCALE
     vals, vecs = np.linalg.eigh(H)
     inv = np.where(vals > sigma2 / big, 1.0 / np.maximum(vals, 1e-300), big / sigma2)
     cov = sigma2 * (vecs * inv) @ vecs.T
-    for v in _free_directions(H, wsum):
+    for v in free:
         cov[:2, :2] += big * np.outer(v, v)
     return cov + np.diag([MIN_SIGMA_XY**2, MIN_SIGMA_XY**2, MIN_SIGMA_THETA**2])

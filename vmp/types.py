@@ -38,6 +38,13 @@ def wrap_angle(theta: ArrayLike) -> FloatArray:
     return (t + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def _wrap1(theta: np.float64) -> np.float64:
+    """:func:`wrap_angle` of one angle. The pose operations below take this path for single
+    poses (about 90,000 calls mapping the Intel part): 2 microseconds a call instead of 8-10
+    through 0-d arrays, with the same NumPy functions in the same order, so the same bits."""
+    return (theta + np.pi) % (2.0 * np.pi) - np.pi
+
+
 def _as_poses(p: ArrayLike) -> FloatArray:
     a = np.asarray(p, dtype=np.float64)
     if a.shape[-1:] != (3,):
@@ -55,6 +62,10 @@ def rotation_matrix(theta: ArrayLike) -> FloatArray:
 def compose(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """``a (+) b``: pose ``b``, given in the frame of ``a``, in the frame ``a`` is given in."""
     a, b = _as_poses(a), _as_poses(b)
+    if a.ndim == 1 and b.ndim == 1:
+        (ax, ay, at), (bx, by, bt) = a, b
+        c, s = np.cos(at), np.sin(at)
+        return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap1(at + bt)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
     y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
@@ -64,6 +75,10 @@ def compose(a: ArrayLike, b: ArrayLike) -> FloatArray:
 def inverse(a: ArrayLike) -> FloatArray:
     """``(-) a``: the pose of the outer frame seen from ``a``, so ``a (+) inverse(a) = 0``."""
     a = _as_poses(a)
+    if a.ndim == 1:
+        ax, ay, at = a
+        c, s = np.cos(at), np.sin(at)
+        return np.array([-c * ax - s * ay, s * ax - c * ay, _wrap1(-at)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = -c * a[..., 0] - s * a[..., 1]
     y = s * a[..., 0] - c * a[..., 1]
@@ -107,6 +122,11 @@ def inverse_covariance(a: ArrayLike, cov_a: ArrayLike) -> FloatArray:
 def relative(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """``(-) a (+) b``: pose ``b`` expressed in the frame of pose ``a``."""
     a, b = _as_poses(a), _as_poses(b)
+    if a.ndim == 1 and b.ndim == 1:
+        (ax, ay, at), (bx, by, bt) = a, b
+        c, s = np.cos(at), np.sin(at)
+        dx, dy = bx - ax, by - ay
+        return np.array([c * dx + s * dy, -s * dx + c * dy, _wrap1(bt - at)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
     return np.stack(
