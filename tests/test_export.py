@@ -98,6 +98,20 @@ def test_contours_are_the_union_of_free_space():
     assert json.loads(shapely.to_geojson(geom))["type"] == "Polygon"
 
 
+def test_a_thin_scan_polygon_is_not_lost_to_the_simplification():
+    # A scan taken about a centimetre from a wall, one beam a metre out through a gap (found
+    # by a random search over star polygons): Douglas-Peucker without topology would reduce
+    # it to nothing.
+    ring = np.array([[0.0, 0.0], [-0.0056, -0.0127], [-0.0059, -0.0133], [-0.0005, -0.0146],
+                     [0.3093, -0.9891], [0.0064, -0.0063], [0.018, -0.0163], [0.0069, -0.0047],
+                     [0.0085, -0.0039], [0.0177, -0.0074], [0.0138, 0.0036], [0.0094, 0.0034],
+                     [0.0027, 0.0187]])
+    beside = np.array([[5.0, 5.0], [6.0, 5.0], [6.0, 6.0]] + [[5.0, 6.0]] * 10)
+    geom = free_space_contours(np.stack([ring, beside]))
+    assert geom.area > 0.5 + 0.004
+    assert geom.intersects(shapely.LineString([(0.1, -0.6), (0.3, -0.6)]))
+
+
 # --- metrics ----------------------------------------------------------------------------------
 
 def literal_ate(est, ref):
