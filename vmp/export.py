@@ -95,7 +95,11 @@ def _add_spans(acc: NDArray[np.int32], polygons: FloatArray, origin: tuple[float
     t = (row - v0[edge]) / (v1[edge] - v0[edge])
     x = u0[edge] + t * (u1[edge] - u0[edge])
     pid = poly[edge]
-    order = np.lexsort((x, row, pid))
+    # Crossings by polygon and row, then by x: one sort by x and one stable sort by (polygon,
+    # row). Crossings at equal x are interchangeable, so the first need not be stable:
+    # np.lexsort over the three keys took 560 ms of the Intel part's 1.0 s rasterisation.
+    by_x = np.argsort(x)
+    order = by_x[np.argsort((pid * H + row)[by_x], kind="stable")]
     x, row = x[order], row[order]
     # Crossings come in pairs per polygon and row: fill between each pair.
     start, stop = x[0::2], x[1::2]
@@ -103,8 +107,16 @@ def _add_spans(acc: NDArray[np.int32], polygons: FloatArray, origin: tuple[float
     a = np.clip(np.ceil(start), 0, W).astype(np.int64)
     b = np.clip(np.floor(stop) + 1, 0, W).astype(np.int64)
     ok = b > a
-    np.add.at(acc, (r[ok], a[ok]), 1)
-    np.add.at(acc, (r[ok], b[ok]), -1)
+    r, a, b = r[ok], a[ok], b[ok]
+    if not len(r):
+        return
+    # Counted with bincount over the rows the spans touch (np.add.at took 8 ms where this takes
+    # 1 ms, for the 90,000 spans of 256 Intel scans).
+    first, last = int(r.min()), int(r.max())
+    block = acc[first:last + 1].reshape(-1)  # a view: rows are contiguous
+    cells = (r - first) * (W + 1)
+    block += np.bincount(cells + a, minlength=block.size).astype(np.int32)
+    block -= np.bincount(cells + b, minlength=block.size).astype(np.int32)
 
 
 def occupancy_grid(polygons: FloatArray, hits: FloatArray, resolution: float,
