@@ -86,9 +86,11 @@ class SearchGrid:
         # Zeros around the likelihood, wide enough that a point clamped into the padding
         # (see :meth:`clamp`) reads zeros under every offset of the window on every level.
         self.pad = 2 * self.max_steps + (1 << depth) + 1
-        self.origin, field = likelihood_field(pts, self.resolution, self.sigma, self.pad)
+        origin, field = likelihood_field(pts, self.resolution, self.sigma, 0)
+        self.origin = origin - self.pad * self.resolution
         # One byte a cell: the block maxima are gathered by the thousand per search level.
-        self.levels = [np.round(255.0 * field).astype(np.uint8)]
+        # Padded once in bytes (the padding is most of a submap's grid).
+        self.levels = [np.pad(np.round(255.0 * field).astype(np.uint8), self.pad)]
         for k in range(1, depth + 1):
             self.levels.append(_block_max(self.levels[-1], 1 << (k - 1)))
 
