@@ -247,7 +247,7 @@ class Localizer:
                                       tried=self._tried_here())
         self._tried.update((mid, self._odometry.copy()) for mid in searched)
         for p in proposals:
-            self._add(p)
+            self._follow(p.pose, p.score)
         return proposals
 
     def _challenge(self, trusted: Hypothesis) -> None:
@@ -324,10 +324,6 @@ class Localizer:
         h.streak += 1
         h.fitted.append(score)
         h.scores.append(score)
-
-    def _add(self, p: Proposal) -> None:
-        """A proposal is a new place to follow, unless one followed is already there."""
-        self._follow(p.pose, p.score)
 
     def _follow(self, pose: FloatArray, score: float) -> None:
         """Follow the place ``pose`` (first scoring ``score``), unless one followed is
