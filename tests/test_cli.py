@@ -155,3 +155,15 @@ def test_map_of_a_carmen_log(tmp_path, capsys):
     rmse = float(capsys.readouterr().out.split("ATE  rmse ")[1].split()[0])
     assert rmse < 0.03
     assert math.isfinite(rmse)
+
+
+def test_the_parser_needs_nothing_of_the_mapper():
+    """'vmp --help', 'vmp scenarios' and a Dask 'vmp batch' (whose runs import the mapper in
+    the workers) must not wait for SciPy, Shapely and the pipeline (about 0.6 s)."""
+    probe = ("import sys; from vmp.cli.parser import build_parser; build_parser(); "
+             "heavy = [m for m in ('scipy', 'shapely', 'filterpy', 'pywt', 'vmp.pipeline', "
+             "'vmp.results', 'vmp.checkpoint', 'drivers.simulator') if m in sys.modules]; "
+             "print(','.join(heavy))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == ""

@@ -19,8 +19,8 @@ from hypothesis import strategies as st
 from drivers.formats import open_recording
 from vmp.config import LIMITS, MappingConfig, config_to_dict, load_config
 from vmp.errors import InputError
+from vmp.folders import INCOMPLETE, new_results_dir
 from vmp.mapfile import checksum, load_map, save_map
-from vmp.results import INCOMPLETE, new_results_dir
 
 EXTREMES = ["nan", "inf", "-inf", "1e308", "-1e308", "0", "-1", "99999999999999999999999",
             "abc", "", "\udcff"]
@@ -270,14 +270,14 @@ def test_sigterm_ends_any_command_with_one_line_and_143(monkeypatch, capsys):
     import signal
     import time
 
-    import vmp.cli.info
+    import vmp.survey
 
     def terminated(_log):
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(5)  # the handler raises before this ends
         raise AssertionError("SIGTERM did not end the command")
 
-    monkeypatch.setattr(vmp.cli.info, "survey", terminated)
+    monkeypatch.setattr(vmp.survey, "survey", terminated)
     before = signal.getsignal(signal.SIGTERM)
     assert run_cli(["info", str(EXCERPTS / "intel-excerpt.clf.gz")]) == 143
     assert "terminated (SIGTERM)" in capsys.readouterr().err

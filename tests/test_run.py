@@ -11,7 +11,7 @@ from conftest import mapped
 
 from drivers import open_source
 from vmp.errors import InputError
-from vmp.results import link_latest, new_results_dir
+from vmp.folders import link_latest, new_results_dir
 from vmp.run import MappingRun
 from vmp.source import Source
 

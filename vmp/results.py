@@ -1,4 +1,5 @@
-"""The outcome of a mapping run, and the results folder it is written to.
+"""The outcome of a mapping run, and what it writes into its results folder
+(:mod:`vmp.folders` makes the folder and marks it complete).
 
 ::
 
@@ -20,9 +21,7 @@
 
 from __future__ import annotations
 
-import datetime as dt
 import json
-import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,7 +48,7 @@ from vmp.source import Reference, SourceReport
 from vmp.tum import write_tum
 from vmp.types import FloatArray
 
-__all__ = ["Result", "export_all", "format_metrics", "link_latest", "new_results_dir"]
+__all__ = ["Result", "export_all", "format_metrics"]
 
 
 @dataclass
@@ -163,58 +162,6 @@ def export_all(out: Path, result: Result, resolution: float, free_space: Future)
     geom = free_space.result()
     write_geojson(out / "contours.geojson", geom,
                   {"what": "boundary of free space", "area_m2": round(geom.area, 3)})
-
-
-INCOMPLETE = "INCOMPLETE"  # in a results folder from its creation until every file is written
-
-
-def new_results_dir(root: Path, name: str) -> Path:
-    """Create ``root/NAME-YYYYmmdd-HHMMSS`` (unique), marked incomplete until
-    :func:`mark_complete`; :func:`link_latest` points at it then."""
-    root.mkdir(parents=True, exist_ok=True)
-    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    path = root / f"{name}-{stamp}"
-    k = 1
-    while path.exists():
-        k += 1
-        path = root / f"{name}-{stamp}-{k}"
-    path.mkdir()
-    (path / INCOMPLETE).write_text(
-        f"This results folder is being written (process {os.getpid()}, since "
-        f"{dt.datetime.now().isoformat(timespec='seconds')}). If it is still here, the run "
-        "stopped before every file was written.\n")
-    return path
-
-
-def mark_complete(folder: Path) -> None:
-    """Mark a results folder whose every file is written as complete."""
-    (folder / INCOMPLETE).unlink(missing_ok=True)
-
-
-def is_incomplete(folder: Path) -> bool:
-    """Whether a results folder was left before all its files were written."""
-    return (folder / INCOMPLETE).exists()
-
-
-def remove_if_empty(folder: Path) -> None:
-    """Remove a results folder that holds nothing but its incomplete mark."""
-    if folder.is_dir() and all(p.name == INCOMPLETE for p in folder.iterdir()):
-        mark_complete(folder)
-        folder.rmdir()
-
-
-def link_latest(folder: Path) -> None:
-    """Point ``latest`` beside ``folder`` at it (once everything in it is written)."""
-    root = folder.parent
-    link = root / "latest"
-    tmp = root / f".latest.{os.getpid()}"
-    try:
-        if tmp.is_symlink() or tmp.exists():
-            tmp.unlink()
-        tmp.symlink_to(folder.name)
-        os.replace(tmp, link)
-    except OSError:  # a file system without links: the dated folder still holds everything
-        pass
 
 
 def format_metrics(metrics: dict) -> str:

@@ -163,7 +163,7 @@ def run_job(job: Job) -> dict[str, Any]:
     a bad source, a crash or the time limit is the row's status."""
     from drivers import open_source
     from vmp.evaluate import read_relations, relation_error, wrong_corrections
-    from vmp.results import mark_complete, new_results_dir
+    from vmp.folders import mark_complete, new_results_dir
     from vmp.run import MappingRun
 
     row = _row(job)

@@ -7,23 +7,20 @@ import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from vmp.checkpoint import CHECKPOINT, Every, remove_checkpoint
 from vmp.cli.args import positive_float
-from vmp.config import MappingConfig, load_config
 from vmp.errors import InputError
-from vmp.mapfile import MapData
-from vmp.progress import Progress
-from vmp.results import (
-    Result,
-    format_metrics,
-    is_incomplete,
-    link_latest,
-    mark_complete,
-    remove_if_empty,
-)
-from vmp.run import MappingRun, stop_on_signals
-from vmp.source import Source
+
+# The mapper's modules (SciPy, Shapely, the pipeline: about 0.6 s to import) are imported by
+# the functions that map, not when the parser is built: 'vmp --help', 'vmp scenarios' and
+# 'vmp batch' (whose runs import them in the workers) do not wait for them.
+if TYPE_CHECKING:
+    from vmp.checkpoint import Every
+    from vmp.config import MappingConfig
+    from vmp.mapfile import MapData
+    from vmp.results import Result
+    from vmp.source import Source
 
 __all__ = ["add_run_options", "finish", "map_and_write", "mapping_config", "open_view"]
 
@@ -43,6 +40,8 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
 
 
 def mapping_config(path: Path | None) -> MappingConfig:
+    from vmp.config import MappingConfig, load_config
+
     return load_config(path) if path else MappingConfig()
 
 
@@ -74,6 +73,11 @@ def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespac
     written); ``resume`` (a checkpoint file) starts from one. Returns the result and the exit
     code.
     """
+    from vmp.checkpoint import CHECKPOINT, remove_checkpoint
+    from vmp.folders import remove_if_empty
+    from vmp.progress import Progress
+    from vmp.run import MappingRun
+
     view = open_view(args.rerun, args.quiet)
     total = source.length if scans is None or source.length is None else min(scans,
                                                                               source.length)
@@ -107,6 +111,10 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
     """Write a run's results folder (``write``), point ``latest`` at it and tell the user;
     returns the exit code (128 + the signal's number when one ended the run, or came while
     writing, which waits until everything is written)."""
+    from vmp.folders import link_latest, mark_complete
+    from vmp.results import format_metrics
+    from vmp.run import stop_on_signals
+
     late: list[str] = []
     with stop_on_signals(late.append):
         metrics = write()
@@ -134,6 +142,8 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
 
 def warn_if_incomplete(path: Path) -> None:
     """Say on stderr when ``path`` is (a file in) a results folder left incomplete."""
+    from vmp.folders import is_incomplete
+
     folder = path if path.is_dir() else path.parent
     if is_incomplete(folder):
         print(f"vmp: warning: {folder} is an incomplete results folder (the run writing it "

@@ -6,8 +6,6 @@ import argparse
 import math
 from pathlib import Path
 
-from vmp.survey import survey
-
 __all__ = ["add_parser", "run"]
 
 
@@ -28,6 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from drivers.formats import open_recording
+    from vmp.survey import survey
 
     path = args.recording
     log = open_recording(path, args.format, scan_topic=args.scan_topic,

@@ -8,7 +8,7 @@ from pathlib import Path
 from vmp.cli.args import positive_float, positive_int
 from vmp.cli.common import add_run_options, map_and_write, mapping_config
 from vmp.errors import InputError
-from vmp.results import new_results_dir, remove_if_empty
+from vmp.folders import new_results_dir, remove_if_empty
 
 __all__ = ["add_live_options", "add_parser", "open_live_source", "run"]
 

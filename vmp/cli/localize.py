@@ -19,7 +19,7 @@ from vmp.cli.common import (
 )
 from vmp.cli.live import add_live_options, open_live_source
 from vmp.errors import InputError
-from vmp.results import new_results_dir, remove_if_empty
+from vmp.folders import new_results_dir, remove_if_empty
 
 __all__ = ["add_parser", "run"]
 

@@ -6,11 +6,10 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from vmp.checkpoint import CHECKPOINT, Every
 from vmp.cli.args import nonneg_int, positive_int
 from vmp.cli.common import add_run_options, map_and_write, mapping_config, warn_if_incomplete
 from vmp.errors import InputError
-from vmp.results import new_results_dir
+from vmp.folders import new_results_dir
 
 __all__ = ["add_parser", "run"]
 
@@ -70,6 +69,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from drivers import open_source
+    from vmp.checkpoint import Every
 
     config = mapping_config(args.config)
     if args.method:
@@ -109,6 +109,8 @@ def _resume_file(args: argparse.Namespace) -> Path:
     if changes:
         raise InputError(f"--resume goes on with the run's own settings: leave out "
                          f"{', '.join(changes)}")
+    from vmp.checkpoint import CHECKPOINT
+
     folder = args.resume
     if not folder.is_dir():
         raise InputError(f"{folder}: not a results folder (give the folder of the killed run)")

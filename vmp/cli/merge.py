@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from vmp.cli.common import add_run_options, map_and_write, mapping_config, warn_if_incomplete
-from vmp.results import new_results_dir
+from vmp.folders import new_results_dir
 
 __all__ = ["add_parser", "run"]
 
