@@ -73,6 +73,18 @@ def tally(dev: PtyDevice, frames: list, key: Callable, sent_key: Callable = byte
     return len(intact), len(intact & exact), sum(g not in sent for g in got)
 
 
+def wait_delivered(session: Session, dev: PtyDevice, key: Callable, sent_key: Callable = bytes,
+              upto: int | None = None, timeout: float = 5.0) -> None:
+    """Wait until every intact scan sent has been delivered, or ``timeout`` (the test's tally
+    then says what is missing). A fixed pause was too short on a loaded machine."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        intact, got, _ = tally(dev, session.frames, key, sent_key, upto)
+        if got >= intact:
+            return
+        time.sleep(0.05)
+
+
 # -- the wire ----------------------------------------------------------------------------------
 def test_a_burst_of_noise_runs_on_into_the_next_telegram():
     rng = np.random.default_rng(1)
@@ -306,7 +318,7 @@ def test_a_noisy_spell_longer_than_the_silence_is_ridden_out(name):
         quiet = len(dev.sent)
         session.wait(lambda: len(dev.sent) >= quiet + 10, 10.0, "scans after the noise")
         upto = len(dev.sent) - 1  # the scan under way when we look is not complete yet
-        time.sleep(0.3)
+        wait_delivered(session, dev, key, sent_key, upto)
         session.stop()
     assert drv.stats.timeouts == drv.stats.reconnects == drv.stats.stalls == 0
     assert drv.stats.errors() > 0
@@ -384,7 +396,7 @@ def test_a_corrupted_session_with_a_power_cycle_keeps_every_intact_scan(name):
         time.sleep(0.6)
         dev.power_on()
         session.wait(dev.finished.is_set, 30.0, "the end of the run")
-        time.sleep(0.3)
+        wait_delivered(session, dev, key, sent_key)
         session.stop()
     intact, got, wrong = tally(dev, session.frames, key, sent_key)
     print(f"\n{name}: {got}/{intact} intact scans delivered, {wrong} wrong; "
