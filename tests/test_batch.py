@@ -43,8 +43,10 @@ def test_a_local_cluster_gives_the_rows_of_a_serial_run(tmp_path, serial_rows):
     assert _figures(rows) == _figures(serial_rows)
     assert [r["source"] for r in rows] == ["lab:1", "lab:2", "corridor"]
     assert all(r["scans"] == SCANS and r["ATE (m)"] < 0.2 for r in rows)
-    for r in rows:  # every run also wrote its results folder
-        assert (Path(r["results"]) / "map.vmpmap").is_file()
+    for r, s in zip(rows, serial_rows, strict=True):  # the same results folder as serial
+        for name in ("trajectory.tum", "map.vmpmap", "grid.npy", "contours.geojson"):
+            assert (Path(r["results"]) / name).read_bytes() == \
+                (Path(s["results"]) / name).read_bytes(), name
 
 
 def _free_port() -> int:

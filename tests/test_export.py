@@ -98,6 +98,18 @@ def test_contours_are_the_union_of_free_space():
     assert json.loads(shapely.to_geojson(geom))["type"] == "Polygon"
 
 
+def test_contours_do_not_depend_on_the_threads_or_the_machine(monkeypatch):
+    # A map's contours must be the same on any machine and in a batch worker that unites
+    # with one thread: the scans are grouped the same way however many threads share them.
+    polys = star_polygons(1800, seed=3)
+    polys[:, :, 0] += np.linspace(0, 60, len(polys))[:, None]  # scans along a path
+    one = free_space_contours(polys, threads=1)
+    assert one.equals_exact(free_space_contours(polys, threads=3), 0.0)
+    for cores in (1, 4):
+        monkeypatch.setattr("os.cpu_count", lambda cores=cores: cores)
+        assert one.equals_exact(free_space_contours(polys), 0.0)
+
+
 def test_a_thin_scan_polygon_is_not_lost_to_the_simplification():
     # A scan taken about a centimetre from a wall, one beam a metre out through a gap (found
     # by a random search over star polygons): Douglas-Peucker without topology would reduce

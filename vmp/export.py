@@ -31,8 +31,8 @@ __all__ = ["FREE", "OCCUPIED", "UNKNOWN", "Grid", "coverage", "free_space_contou
            "occupancy_grid", "read_ros_map", "write_graph_json", "write_png",
            "write_ros_map"]
 
-UNION_THREADS = 8  # at most this many threads unite the free space, one per core
-UNION_MIN_CHUNK = 200  # fewer polygons a thread are united in one go
+UNION_RUNS = 8  # the free space is united in this many runs of consecutive scans ...
+UNION_MIN_CHUNK = 200  # ... of at least this many (fewer scans: fewer runs)
 UNION_PIECE = 1000  # polygons made and united at once within a thread (bounds memory)
 COVER_CHUNK = 256  # polygons rasterised at once (bounds memory)
 
@@ -249,24 +249,37 @@ def write_png(path: str | Path, grid: Grid) -> None:
         f.write(png)
 
 
-def free_space_contours(polygons: FloatArray, grid_size: float = 0.01) -> shapely.Geometry:
+def free_space_contours(polygons: FloatArray, grid_size: float = 0.01,
+                        threads: int | None = None) -> shapely.Geometry:
     """The union of the scan polygons (free space) as one (multi)polygon, its vertices
-    snapped to ``grid_size``.
+    snapped to ``grid_size``; ``threads`` unite it (default: one per core).
 
-    Consecutive runs of scans are united in threads (GEOS releases the GIL), then the parts:
-    on the Intel part's 5,505 scans this took 7.4 s on 2 cores against 12.5 s in one union;
-    splitting it finer than one run per thread gained nothing. Within a thread the polygons
-    are made and united :data:`UNION_PIECE` at a time, so that not every scan's geometry
-    exists at once.
+    Consecutive runs of scans are united apart, in threads (GEOS releases the GIL), then the
+    parts: on the Intel part's 5,505 scans 1.4 s on 2 cores against 2.4 s in one run. The
+    runs are always the same (:data:`UNION_RUNS` of them), however many threads share them:
+    the snapped result depends on how the scans are grouped (the Intel part's area moves by
+    0.1 m^2 between 2, 4 and 8 runs), and a map's contours must not depend on the machine
+    or on the runs beside it (a `vmp batch` worker unites with one thread: two runs side by
+    side, each uniting with both cores, cost 9-13 % more CPU). 1, 2, 4 and 8 runs cost the
+    same CPU to within noise (Intel part 2.4-2.6 s, office 1.3 s, one thread). Within a run
+    the polygons are made and united :data:`UNION_PIECE` at a time, so that not every scan's
+    geometry exists at once.
     """
-    workers = max(1, min(UNION_THREADS, os.cpu_count() or 1))
-    if workers == 1 or len(polygons) < 2 * UNION_MIN_CHUNK:
+    count = max(1, min(UNION_RUNS, len(polygons) // UNION_MIN_CHUNK))
+    runs = [r for r in np.array_split(np.arange(len(polygons)), count) if len(r)]
+    if not runs:
         return _union_pieces(polygons, grid_size)
-    runs = np.array_split(np.arange(len(polygons)), workers)
-    with ThreadPoolExecutor(workers) as pool:
-        parts = list(pool.map(lambda run: _union_pieces(polygons[run[0]:run[-1] + 1],
-                                                        grid_size), runs))
-    return shapely.union_all(parts, grid_size=grid_size)
+    threads = max(1, min(len(runs), threads or os.cpu_count() or 1))
+
+    def unite(run: np.ndarray) -> shapely.Geometry:
+        return _union_pieces(polygons[run[0]:run[-1] + 1], grid_size)
+
+    if threads == 1:
+        parts = [unite(run) for run in runs]  # eight at most: not a loop over scans
+    else:
+        with ThreadPoolExecutor(threads) as pool:
+            parts = list(pool.map(unite, runs))
+    return parts[0] if len(parts) == 1 else shapely.union_all(parts, grid_size=grid_size)
 
 
 def _union_pieces(polygons: FloatArray, grid_size: float) -> shapely.Geometry:

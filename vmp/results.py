@@ -120,13 +120,14 @@ class Result:
             return ate_in_order(poses, ref.poses)
         return ate(self.stamps, poses, ref.stamps, ref.poses).rmse
 
-    def write(self, out: Path, resolution: float = 0.05) -> dict:
-        """Write every output into the folder ``out``; returns the metrics."""
+    def write(self, out: Path, resolution: float = 0.05, threads: int | None = None) -> dict:
+        """Write every output into the folder ``out``; returns the metrics. ``threads``: how
+        many may unite the free space (default: one per core)."""
         # Uniting the free space is most of the writing (the Intel part: 2.7 s of 4.2 s; ACES
         # 5.0 of 7.9) and runs in GEOS, off the GIL: started first, it goes on while the rest
         # is rasterised and written.
         with ThreadPoolExecutor(1) as pool:
-            free_space = pool.submit(free_space_contours, self.polygons())
+            free_space = pool.submit(free_space_contours, self.polygons(), threads=threads)
             self._write_all(out, resolution, free_space)
         metrics = self.metrics()
         with atomic_write(out / "metrics.json", "w") as f:
