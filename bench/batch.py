@@ -86,6 +86,7 @@ def pair(k: int, source: str, root: Path, workers: int | None) -> dict:
 
 
 def report(rows: list[dict], source: str, cores: int) -> str:
+    """The pairs as a Markdown table, the median ratio and what the cores allow."""
     ratios = [r["ratio"] for r in rows]
     floor = (statistics.median(r["serial"].cores for r in rows)
              * statistics.median(r["cpu_ratio"] for r in rows) / cores)
