@@ -30,8 +30,9 @@ from pathlib import Path
 
 from report import machine, write_section
 
+from vmp.cli.batch import TIMING
+
 GOAL = 0.6  # issue 16: the batch takes at most this share of the serial time
-TIMED = ("mapping (s)", "real-time factor", "results")  # columns that differ run to run
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,7 @@ def run_command(source: str, out: Path, serial: bool, workers: int | None) -> Ti
 def same_figures(a: list[dict], b: list[dict]) -> bool:
     """Whether two tables hold the same runs with the same figures (times aside)."""
     def strip(rows: list[dict]) -> list[dict]:
-        return [{k: v for k, v in r.items() if k not in TIMED} for r in rows]
+        return [{k: v for k, v in r.items() if k not in (*TIMING, "results")} for r in rows]
     return strip(a) == strip(b)
 
 

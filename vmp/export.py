@@ -266,20 +266,13 @@ def free_space_contours(polygons: FloatArray, grid_size: float = 0.01,
     geometry exists at once.
     """
     count = max(1, min(UNION_RUNS, len(polygons) // UNION_MIN_CHUNK))
-    runs = [r for r in np.array_split(np.arange(len(polygons)), count) if len(r)]
-    if not runs:
+    if count == 1:
         return _union_pieces(polygons, grid_size)
-    threads = max(1, min(len(runs), threads or os.cpu_count() or 1))
-
-    def unite(run: np.ndarray) -> shapely.Geometry:
-        return _union_pieces(polygons[run[0]:run[-1] + 1], grid_size)
-
-    if threads == 1:
-        parts = [unite(run) for run in runs]  # eight at most: not a loop over scans
-    else:
-        with ThreadPoolExecutor(threads) as pool:
-            parts = list(pool.map(unite, runs))
-    return parts[0] if len(parts) == 1 else shapely.union_all(parts, grid_size=grid_size)
+    runs = np.array_split(np.arange(len(polygons)), count)  # none empty: count <= len / 200
+    with ThreadPoolExecutor(max(1, min(count, threads or os.cpu_count() or 1))) as pool:
+        parts = list(pool.map(lambda run: _union_pieces(polygons[run[0]:run[-1] + 1],
+                                                        grid_size), runs))
+    return shapely.union_all(parts, grid_size=grid_size)
 
 
 def _union_pieces(polygons: FloatArray, grid_size: float) -> shapely.Geometry:

@@ -209,10 +209,8 @@ def run_job(job: Job) -> dict[str, Any]:
 
 def _worker_threads() -> int | None:
     """The threads of the Dask worker running this task, or None outside one (one run at a
-    time: every core). A run writing its results unites the free space in threads; in a
-    worker it takes no more than the worker's share of the cores: two office runs side by
-    side, each uniting with both cores, cost 9-13 % more CPU than with one each (two rounds
-    of four seeds a process, in turn), and the batch's time is its CPU over the cores."""
+    time: every core): a run unites its free space with no more than its worker's share of
+    the cores (why: :func:`vmp.export.free_space_contours`)."""
     try:
         from distributed import get_worker
 
