@@ -94,7 +94,10 @@ class RplidarDriver(ScanDriver):
         self.info = rp.parse_info(self._query(rp.GET_INFO, rp.INFO_DESCRIPTOR, "GET_INFO"))
         self._set_motor(True)
         self.write(rp.request(rp.SCAN))
-        self._carry = self._reply(rp.SCAN_DESCRIPTOR, 0, "SCAN")  # first nodes, for decode()
+        # the nodes that follow are checked one by one, so a SCAN descriptor with one byte
+        # damaged on the wire is taken (no other descriptor lies within two bytes of it) rather
+        # than thrown away with the turns behind it
+        self._carry = self._reply(rp.SCAN_DESCRIPTOR, 0, "SCAN", max_wrong=1)
         angle_min, inc = rp.beam_layout(self.beams)
         return BeamGeometry(self.beams, angle_min, inc, self.max_range)
 
@@ -166,21 +169,25 @@ class RplidarDriver(ScanDriver):
                 break
         self._flush()
 
-    def _reply(self, descriptor: bytes, size: int, what: str) -> bytes:
-        """Wait for ``descriptor`` and ``size`` bytes after it (text before it is skipped);
-        everything received after the descriptor."""
+    def _reply(self, descriptor: bytes, size: int, what: str, max_wrong: int = 0) -> bytes:
+        """Wait for ``descriptor`` (up to ``max_wrong`` bytes damaged) and ``size`` bytes after
+        it (text before it is skipped); everything received after the descriptor."""
         head = descriptor[:2]
 
+        def found(b: bytes) -> int:
+            k = rp.find_descriptor(b, descriptor, max_wrong)
+            return k if k >= 0 else b.find(head)
+
         def complete(b: bytes) -> bool:
-            k = b.find(head)
+            k = found(b)
             return k >= 0 and len(b) >= k + rp.DESCRIPTOR_SIZE + size
 
         got = self.read_for(self.reply_timeout, until=complete)
-        k = got.find(head)
+        k = found(got)
         if k < 0 or len(got) < k + rp.DESCRIPTOR_SIZE:
             raise DeviceError(f"no answer to {what}" + (f" (got {got[:40]!r})" if got else ""))
         desc = got[k:k + rp.DESCRIPTOR_SIZE]
-        if desc != descriptor:
+        if rp.find_descriptor(desc, descriptor, max_wrong) < 0:
             raise DeviceError(f"unexpected {what} descriptor {desc.hex(' ').upper()}, "
                               f"expected {descriptor.hex(' ').upper()}")
         data = got[k + rp.DESCRIPTOR_SIZE:]

@@ -39,6 +39,7 @@ __all__ = [
     "bin_nodes",
     "decode_nodes",
     "encode_nodes",
+    "find_descriptor",
     "parse_descriptor",
     "parse_health",
     "parse_info",
@@ -112,6 +113,18 @@ def parse_descriptor(data: bytes) -> Descriptor:
         raise ValueError(f"a descriptor starts with A5 5A, got {data[:2].hex(' ').upper()}")
     (word,) = struct.unpack_from("<I", data, 2)
     return Descriptor(word & 0x3FFFFFFF, word >> 30, data[6])
+
+
+def find_descriptor(data: bytes, descriptor: bytes, max_wrong: int = 0) -> int:
+    """Offset of the first 7 bytes of ``data`` that read as ``descriptor`` with at most
+    ``max_wrong`` bytes changed on the wire, or -1."""
+    if len(data) < DESCRIPTOR_SIZE:
+        return -1
+    windows = np.lib.stride_tricks.sliding_window_view(np.frombuffer(data, dtype=np.uint8),
+                                                        DESCRIPTOR_SIZE)
+    wrong = np.count_nonzero(windows != np.frombuffer(descriptor, dtype=np.uint8), axis=1)
+    hits = np.flatnonzero(wrong <= max_wrong)
+    return int(hits[0]) if hits.size else -1
 
 
 @dataclass(frozen=True)
@@ -333,6 +346,15 @@ class NodeDecoder:
         """Whether each node may follow the node with a return ``nodes_on`` nodes before it."""
         return (cur_dist == 0) | _follows(prev, cur, self.max_gap * nodes_on, self.max_back)
 
+    @staticmethod
+    def _false_start(ang: np.ndarray, start: np.ndarray, suspect: int, found: int) -> bool:
+        """Whether the node a new lock found at ``found``, on the bytes of the node held in
+        doubt at ``suspect``, begins a new revolution (its angle falls back by more than half
+        a circle) without a start flag: not a node the device sent, but the held node's last
+        byte read with the damaged start node after it, so the held node stands."""
+        wraps = int(ang[found]) < int(ang[suspect]) - ANGLE_FULL_Q6 // 2
+        return wraps and not start[found]
+
     def flush(self) -> Nodes:
         """The node held back for the window after it (the stream has paused)."""
         if not self._locked or self._suspect or self._resume or len(self._buf) < NODE_SIZE:
@@ -352,6 +374,8 @@ class NodeDecoder:
         window breaks the lock, the held node may itself be misread (a byte before it was
         lost or added), and if the decoder locks again within it, on the node's own bytes,
         the held node is dropped; its last byte may have been the start of the next node.
+        It stands when the node found there begins a revolution without a start flag (a
+        byte lost at the head of the next turn); the lock then starts one node later.
         """
         buf = self._buf + bytes(data)
         a = np.frombuffer(buf, dtype=np.uint8)
@@ -364,6 +388,7 @@ class NodeDecoder:
         ang = _window_angle(a)
         dist = _window_dist(a)
         ok = _window_ok(a) & (ang < ANGLE_FULL_Q6)  # ok[i]: window at i passes; len n - 4
+        start = (a[:-4] & 1).astype(bool)  # start[i]: the window at i has S = 1
         starts: list[np.ndarray] = []
         span = NODE_SIZE * (self.lock - 1)
         while True:
@@ -414,10 +439,18 @@ class NodeDecoder:
                     before = slice(pos + (k - 1) * NODE_SIZE, end + (k - 1) * NODE_SIZE)
                     cand &= ok[here]
                     cand &= self._fits(ang[before], ang[here], dist[here]) | (dist[before] == 0)
+                    # a start node without a return right before another start node: no
+                    # revolution is one node long (read on a no-return node's zero bytes)
+                    cand &= ~(start[before] & start[here] & (dist[before] == 0))
                 hits = np.flatnonzero(cand)
                 found = pos + int(hits[0]) if hits.size else end
                 if suspect >= 0 and (hits.size or end >= suspect + NODE_SIZE):
-                    if found < suspect + NODE_SIZE:  # locked again on its bytes: drop it
+                    if hits.size and found < suspect + NODE_SIZE \
+                            and self._false_start(ang, start, suspect, found):
+                        starts.append(np.array([suspect]))  # it stands; the lock skips a node
+                        self.skipped_bytes += found - suspect
+                        found += NODE_SIZE
+                    elif found < suspect + NODE_SIZE:  # locked again on its bytes: drop it
                         self.skipped_bytes += found - suspect
                     else:  # it stands
                         starts.append(np.array([suspect]))
@@ -636,9 +669,21 @@ class TurnAssembler:
             return len(nodes)
         stop = np.flatnonzero(bad[:-1])
         over = np.flatnonzero(along > ANGLE_FULL_Q6 - 0.5 * max(med, 0.0))
-        ends = [int(pos[stop[0]]) + 1] if stop.size else []
-        ends += [int(pos[over[0]])] if over.size else []
+        ends = [self._wrap_within(nodes, int(pos[stop[0]]), int(pos[stop[0] + 1]),
+                                  int(pos[stop[0]]) + 1)] if stop.size else []
+        ends += [self._wrap_within(nodes, int(pos[over[0] - 1]), int(pos[over[0]]),
+                                   int(pos[over[0]]))] if over.size else []
         return min(ends, default=len(nodes))
+
+    @staticmethod
+    def _wrap_within(nodes: Nodes, first: int, last: int, default: int) -> int:
+        """Where the next revolution begins among the nodes without a return between two
+        with one (``first`` < index <= ``last``): at the first whose angle falls back by more
+        than half a circle; ``default`` if none does. The nodes before it belong to this
+        turn even when the next turn's start node was lost."""
+        angle = nodes.angle_q6[first:last + 1].astype(np.int64)
+        back = np.flatnonzero(np.diff(angle) < -(ANGLE_FULL_Q6 // 2))
+        return first + 1 + int(back[0]) if back.size else default
 
     def check(self, nodes: Nodes) -> str | None:
         """Why the nodes of one turn are not a plausible revolution, or None if they are."""

@@ -66,6 +66,17 @@ def test_r8_scan_descriptor():
         parse_descriptor(H("A5 A5 05 00 00 40 81"))
 
 
+def test_a_descriptor_is_found_with_at_most_the_bytes_allowed_damaged():
+    reply = b"RP LIDAR\r\n" + H("A5 5A 05 10 00 40 81") + H("3D 01 2D 71 17")
+    assert rp.find_descriptor(reply, rp.SCAN_DESCRIPTOR) == -1
+    assert rp.find_descriptor(reply, rp.SCAN_DESCRIPTOR, max_wrong=1) == 10
+    assert rp.find_descriptor(H("A5 5A 05 10 00 41 81"), rp.SCAN_DESCRIPTOR, max_wrong=1) == -1
+    # one damaged byte never makes another reply this driver asks for read as SCAN's
+    for other in (rp.INFO_DESCRIPTOR, rp.HEALTH_DESCRIPTOR, rp.SAMPLERATE_DESCRIPTOR):
+        assert np.count_nonzero(np.frombuffer(other, np.uint8)
+                                != np.frombuffer(rp.SCAN_DESCRIPTOR, np.uint8)) >= 3
+
+
 @pytest.mark.parametrize(("wire", "start", "quality", "angle", "dist"), [
     ("3D 01 2D 71 17", True, 15, 90.0, 1500.25),  # R9
     ("BE FF B3 00 00", False, 47, 359.984375, 0.0),  # R10
@@ -367,6 +378,25 @@ def test_reconnects_after_silence_and_boot_banner():
     assert drv.stats.timeouts >= 1 and drv.stats.reconnects >= 1
     assert drv.stats.failed_connects >= 1  # the powered-off device did not answer
     assert drv.stats.rejected == 0
+
+
+class DamagedScanAnswer(RplidarDevice):
+    """Answers the first SCAN with one byte of its descriptor changed on the wire."""
+
+    def send(self, data: bytes, scan=None):
+        if data == rp.SCAN_DESCRIPTOR and not getattr(self, "damaged", False):
+            self.damaged = True
+            data = data[:3] + bytes([data[3] ^ 0x10]) + data[4:]
+        return super().send(data, scan)
+
+
+def test_a_scan_answer_with_a_damaged_descriptor_is_streamed_not_thrown_away():
+    src = ScanSource(SCENARIO, RplidarDevice.sensor_model(), seed=1, max_scans=3000)
+    dev = DamagedScanAnswer(src, speed=8.0)
+    drv = RplidarDriver(dev.port, silence=0.3, reply_timeout=0.2)
+    with dev, Session(drv) as s:
+        s.wait(lambda: len(s.frames) >= 5, 20.0, "scans")
+    assert dev.damaged and drv.stats.failed_connects == 0 and drv.stats.reconnects == 0
 
 
 def test_health_error_is_cleared_by_reset():

@@ -266,6 +266,52 @@ def test_a_corrupted_start_node_of_the_next_turn_does_not_cost_this_turn():
                      [t[0][2], t[2][2]]) == [True, True]
 
 
+def test_a_damaged_start_node_never_costs_a_turn_that_ends_without_returns():
+    # The turn's last nodes have no return; the next turn's head is hit as the simulated wire
+    # hits it (a flipped bit, a lost byte, a burst of 8 random bytes). Cut back to one
+    # revolution, the turn used to end at its last return and then fail its own wrap step.
+    rng = np.random.default_rng(0)
+    for seed in range(3):
+        t = [turn(seed=3 * seed + k) for k in range(3)]
+        s, a, d = (x.copy() for x in t[0])
+        d[-4:] = 0
+        head = wire(*t[1])
+        for cut in range(0, 15):
+            for change in ("drop", "bit0", "bit1", "bit7", "burst"):
+                damaged = bytearray(head)
+                if change == "drop":
+                    del damaged[cut]
+                elif change == "burst":
+                    damaged[cut:cut + 8] = rng.integers(0, 256, 8, dtype=np.uint8).tobytes()
+                else:
+                    damaged[cut] ^= 1 << int(change[-1])
+                stream = wire(s, a, d) + bytes(damaged) + wire(*t[2]) + wire(*turn(seed=50))
+                assert delivered(stream, [d]) == [True], (seed, cut, change)
+
+
+def test_a_lost_byte_in_the_next_start_node_keeps_this_turn_whole():
+    # The lost byte makes the held last node's final byte and the damaged start node read as a
+    # node at the start of a revolution without a start flag: no node the device sends.
+    t = [turn(seed=k) for k in range(3)]
+    head = wire(*t[1])
+    for cut in range(3):
+        damaged = head[:cut] + head[cut + 1:]
+        assert delivered(wire(*t[0]) + damaged + wire(*t[2]) + wire(*turn(seed=5)),
+                         [t[0][2], t[2][2]]) == [True, True], cut
+
+
+def test_a_lost_byte_in_the_last_node_never_delivers_a_made_up_distance():
+    # the mirror image of the case above: here the held node itself is damaged, and the
+    # node the new lock finds on its bytes is the true start node, with its start flag
+    for seed in range(10):
+        t = [turn(seed=3 * seed + k) for k in range(3)]
+        a = wire(*t[0])
+        for cut in range(len(a) - 5, len(a)):
+            asm = TurnAssembler()
+            got = asm.feed(a[:cut] + a[cut + 1:] + wire(*t[1]) + wire(*t[2]))
+            assert [g.dist_q2.tolist() for g in got] == [t[1][2].tolist()], (seed, cut)
+
+
 def test_the_last_turn_before_the_stream_stops_is_delivered():
     t = [turn(seed=k) for k in range(2)]
     asm = TurnAssembler()
