@@ -170,9 +170,11 @@ class CarmenLog(LineLog):
 
     Odometry: a FLASER or ROBOTLASER1 scan carries its own. A RAWLASER scan carries none; it
     gets the pose of the ODOM lines interpolated to its stamp (a log without ODOM lines gives
-    scans without odometry). A FLASER scan whose odometry is exactly the last ODOM line's pose
-    (ACES's logger copies it into every scan, up to 0.19 s old at the scan's stamp) gets the
-    ODOM lines' pose interpolated to its own stamp too; a logger that interpolates itself
+    scans without odometry). A FLASER scan whose odometry is exactly the last ODOM line's pose,
+    stamped otherwise (ACES's logger copies it into every scan, up to 0.19 s old at the
+    scan's stamp), gets the ODOM lines' pose interpolated to its own stamp too; one stamped
+    with it keeps its own (:class:`CarmenWriter` writes them so, and several scans of a live run
+    can share a stamp, each with the odometry it was mapped with); a logger that interpolates itself
     (fr079's) writes poses between the ODOM lines, which are kept. In a GMapping output log
     (one with ``NEFF`` lines, like the corrected Radish logs; they follow its first scan) the
     FLASER poses are GMapping's corrected estimates, not odometry:
@@ -273,6 +275,7 @@ class CarmenLog(LineLog):
                 continue
             if kind == "FLASER" and frame.odom is not None:
                 stale = (not self.gmapping and flasers >= NOT_GMAPPING and bool(odom_p)
+                         and frame.stamp != odom_t[-1]
                          and np.array_equal(frame.odom, odom_p[-1]))
                 flasers += 1
                 if stale or pending:

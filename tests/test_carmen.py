@@ -1,5 +1,6 @@
 """The CARMEN log the simulator records, line by line and read back."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -48,6 +49,18 @@ def test_round_trip_keeps_ranges_poses_and_no_returns(tmp_path):
         np.testing.assert_allclose(b.odom, a.odom, atol=1e-6)
         assert math.isclose(b.stamp, a.stamp, abs_tol=1e-6)
     assert any(np.isinf(a.ranges).any() for a in frames)  # no-returns were exercised
+
+
+def test_scans_sharing_a_stamp_keep_each_its_own_odometry(tmp_path):
+    # A live run stamps the scans that arrive in one read alike, each with the odometry the
+    # pose feed gave it; its replay must see the same (it used to take the first one's).
+    frames = list(Simulator(load_scenario("office"), max_scans=80))
+    frames[40:43] = [dataclasses.replace(f, stamp=frames[40].stamp) for f in frames[40:43]]
+    out = tmp_path / "live.clf"
+    write_carmen(out, frames)
+    back = list(read_carmen(out))
+    for a, b in zip(frames, back, strict=True):
+        np.testing.assert_allclose(b.odom, a.odom, atol=1e-6)
 
 
 def test_other_geometry_is_written_as_robotlaser1(tmp_path):
