@@ -15,7 +15,9 @@ ambiguous.
 Real (every log in ../shared/data with a relations file): the first half of the log is mapped,
 the second half localized in that map from no pose, and scored on the relations whose two
 stamps both lie in the second half, beside the whole log mapped in one go on the same
-relations. Also the tracking speed against the mapping speed (scans per second of each run
+relations, and how many of its scans were localized where the first half passed (within
+1 m, facing within 45 degrees: elsewhere its map may not hold what a scan sees). Also the
+tracking speed against the mapping speed (scans per second of each run
 loop, the full mapping run's), and two second sessions scored on all the log's relations:
 the second half mapped on in the first half's map (``vmp map --continue``), and both halves
 mapped apart and merged (``vmp merge``).
@@ -34,6 +36,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -49,9 +52,12 @@ from vmp.mapfile import MapData, load_map, save_map
 from vmp.results import Result
 from vmp.run import MappingRun
 from vmp.source import FrameList, Reference
+from vmp.types import FloatArray
 
 STRETCH = 150  # scans before and after the kidnap
 WITHIN = 30  # the goal: localized within this many scans of a start or a kidnap
+PASSED_XY = 1.0  # a second-half scan this near (m) ...
+PASSED_THETA = math.radians(45.0)  # ... and facing this close to a first-half scan: "passed"
 CARRIED = 3.0  # the kidnap carries the robot at least this far (m)
 SIM = ("office", "warehouse", "lab", "corridor")
 
@@ -131,6 +137,17 @@ def simulated(names: list[str], runs: int) -> list[dict]:
     return rows
 
 
+def passed(trajectory: FloatArray, half: int) -> np.ndarray:
+    """For each scan of the second half: whether the first half passed there, within
+    :data:`PASSED_XY` and facing within :data:`PASSED_THETA` (poses of one map of the whole
+    log): where the first half's map can hold what the scan sees."""
+    poses = np.asarray(trajectory, dtype=np.float64)
+    first, second = poses[:half], poses[half:]
+    dist, idx = cKDTree(first[:, :2]).query(second[:, :2])
+    turn = np.abs((second[:, 2] - first[idx, 2] + math.pi) % math.tau - math.pi)
+    return (dist <= PASSED_XY) & (turn <= PASSED_THETA)
+
+
 def real(only: str | None) -> list[dict]:
     rows = []
     for name, log, rel_path in logs(only):
@@ -151,6 +168,10 @@ def real(only: str | None) -> list[dict]:
         e_same = relation_error(full.stamps, full.trajectory,
                                 relations_between(res.stamps[loc], inside))
         first_fix = int(np.argmax(loc)) if loc.any() else None
+        if full.scans != len(frames):
+            raise SystemExit(f"{name}: the whole-log map placed {full.scans} of "
+                             f"{len(frames)} scans; cannot pair its poses with the halves")
+        seen = passed(full.trajectory, half)
         map_rate = full.scans / full.mapping_time
         # A second session: the second half mapped on in the first half's map, and the two
         # halves mapped apart and merged (what 'vmp map --continue' and 'vmp merge' do).
@@ -166,9 +187,12 @@ def real(only: str | None) -> list[dict]:
                "used": e_loc.used, "loc": e_loc, "full": e_full, "same": e_same,
                "rate": res.scans / res.time, "map_rate": map_rate, "all": e_all,
                "tracking": res.metrics().get("tracking: scans per second", math.nan),
-               "cont": e_cont, "merged": e_merged}
+               "cont": e_cont, "merged": e_merged, "passed": float(seen.mean()),
+               "passed_localized": float(loc[seen].mean()) if seen.any() else math.nan}
         print(f"{name}: second half ({res.scans} scans) localized after {first_fix} scans, "
-              f"{row['share']:.1%} of scans localized, {row['lost']} lost; relations in the "
+              f"{row['share']:.1%} of scans localized, {row['lost']} lost; where the first "
+              f"half passed ({row['passed']:.1%} of the scans) {row['passed_localized']:.1%} "
+              f"localized; relations in the "
               f"second half: localized {e_loc.trans_mean:.4f} m, "
               f"{math.degrees(e_loc.rot_mean):.2f} deg on {e_loc.used} of {len(inside)}; "
               f"whole log mapped {e_same.trans_mean:.4f} m, {math.degrees(e_same.rot_mean):.2f} "
@@ -209,15 +233,22 @@ def table(sim: list[dict], rows: list[dict], runs: int) -> str:
         lines.append("")
     if rows:
         lines += ["Real: the first half of each log mapped, the second half localized in it "
-                  "from no pose; relations with both stamps in the second half.", "",
-                  "| log | scans until localized | scans localized | lost | relations used | "
+                  "from no pose; relations with both stamps in the second half. \"Where the "
+                  "first half passed\": the second half's scans taken within "
+                  f"{PASSED_XY:g} m of a first-half scan and facing within "
+                  f"{math.degrees(PASSED_THETA):.0f} deg of it (poses of the whole log mapped "
+                  "in one go), and how many of those were localized: elsewhere the first "
+                  "half's map may not hold what the scan sees.", "",
+                  "| log | scans until localized | scans localized | where the first half "
+                  "passed: scans, localized | lost | relations used | "
                   "localized: trans (m), rot (deg) | whole log mapped, the same relations | "
                   "whole log mapped, all relations of the second half | speed: "
                   "localizing, tracking, mapping (scans/s) | tracking / mapping |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
             a, b, c = r["loc"], r["same"], r["full"]
-            lines.append(f"| {r['name']} | {r['first']} | {r['share']:.1%} | {r['lost']} | "
+            lines.append(f"| {r['name']} | {r['first']} | {r['share']:.1%} | "
+                         f"{r['passed']:.1%}, {r['passed_localized']:.1%} | {r['lost']} | "
                          f"{a.used} of {r['relations']} | {a.trans_mean:.4f}, "
                          f"{math.degrees(a.rot_mean):.2f} | {b.trans_mean:.4f}, "
                          f"{math.degrees(b.rot_mean):.2f} | {c.trans_mean:.4f}, "

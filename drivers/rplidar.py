@@ -95,8 +95,8 @@ class RplidarDriver(ScanDriver):
         self._set_motor(True)
         self.write(rp.request(rp.SCAN))
         # the nodes that follow are checked one by one, so a SCAN descriptor with one byte
-        # damaged on the wire is taken (no other descriptor lies within two bytes of it) rather
-        # than thrown away with the turns behind it
+        # damaged on the wire is taken (the other replies this driver asks for differ from it
+        # in three bytes) rather than thrown away with the turns behind it
         self._carry = self._reply(rp.SCAN_DESCRIPTOR, 0, "SCAN", max_wrong=1)
         angle_min, inc = rp.beam_layout(self.beams)
         return BeamGeometry(self.beams, angle_min, inc, self.max_range)
