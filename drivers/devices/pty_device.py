@@ -200,6 +200,7 @@ class PtyDevice:
         self.boot_time = boot_time
         self.line_rate = line_rate
         self.glitch = glitch
+        self.seed = seed
         self._rng = np.random.default_rng(seed)
         self._master, self._slave = os.openpty()
         tty.setraw(self._master)
@@ -308,6 +309,19 @@ class PtyDevice:
         due = int(self.device_time() / self.source.period)
         self._next_scan = max(self._next_scan, min(due, len(self.source)))
 
+    def scan_rng(self, seq: int, stream: int) -> np.random.Generator:
+        """Random numbers of scan ``seq`` alone (``stream`` tells its uses apart): a scan
+        comes out the same whenever it is sent and however its bytes are cut up."""
+        return np.random.default_rng((self.seed, seq, stream))
+
+    def corrupt_scan(self, data: bytes, seq: int) -> tuple[bytes, bool]:
+        """The whole of scan ``seq``'s bytes as the wire delivers them, and whether any was
+        hit (the same for the same scan in every run; a burst still owed runs into it and
+        on into what follows)."""
+        out, changed, self._burst = self.corruption.corrupt(data, self.scan_rng(seq, 0),
+                                                            self._burst)
+        return out, changed
+
     def record(self, seq: int, values: np.ndarray) -> SentScan:
         """Note a scan that starts to leave the device now (intact until a byte of it is hit)."""
         rec = SentScan(seq, values, True)
@@ -319,16 +333,21 @@ class PtyDevice:
         """Bytes sent earlier are still waiting for the line (only with a ``line_rate``)."""
         return bool(self._out)
 
-    def send(self, data: bytes, scan: tuple[int, np.ndarray] | SentScan | None = None
-             ) -> SentScan | None:
+    def send(self, data: bytes, scan: tuple[int, np.ndarray] | SentScan | None = None,
+             corrupt: bool = True) -> SentScan | None:
         """Send bytes through the corrupting wire; ``scan`` = (seq, values) records a scan,
-        a :class:`SentScan` from an earlier call adds these bytes to it. The record."""
+        a :class:`SentScan` from an earlier call adds these bytes to it. The record.
+        ``corrupt=False``: the bytes went through the wire's corruption already
+        (:meth:`corrupt_scan`)."""
         rec = scan if isinstance(scan, SentScan) else None
         if not self._ctl.powered:
             if rec is not None:
                 rec.intact = False
             return rec
-        out, changed, self._burst = self.corruption.corrupt(data, self._rng, self._burst)
+        if corrupt:
+            out, changed, self._burst = self.corruption.corrupt(data, self._rng, self._burst)
+        else:
+            out, changed = data, False
         if scan is not None and rec is None:
             rec = self.record(*scan)
         if rec is not None and changed:

@@ -42,7 +42,8 @@ BANNER = b"RP LIDAR System.\r\nFirmware Ver 1.29 - rc0, HW Ver 7\r\nModel: 18\r\
 
 @dataclass
 class _Turn:
-    """A turn on its way out: its wire bytes, node count, sample clock and record."""
+    """A turn on its way out: its wire bytes (as corrupted), node count, sample clock and
+    record."""
 
     data: bytes
     nodes: int
@@ -195,23 +196,24 @@ class RplidarDevice(PtyDevice):
             (self.motor_pwm,) = struct.unpack("<H", payload)
         # STOP and unknown commands: no answer
 
-    def turn_bytes(self, ranges: np.ndarray, nodes: int | None = None
-                   ) -> tuple[bytes, np.ndarray]:
+    def turn_bytes(self, ranges: np.ndarray, nodes: int | None = None,
+                   rng: np.random.Generator | None = None) -> tuple[bytes, np.ndarray]:
         """Wire bytes of one turn of ``ranges`` (m, beam order) and distance_q2 per beam.
 
         ``nodes`` (default: one per beam) are spread evenly over the turn from a first node
         within one step of 0 degrees (at 0 without ``rpm_jitter``); each takes the range of
         the beam it is sampled in, and a point with a return is reported at its angle
-        corrected for ``parallax``.
+        corrected for ``parallax``. ``rng`` draws the jitter (default: the device's own).
         """
+        rng = self._node_rng if rng is None else rng
         beams = ranges.size
         n = beams if nodes is None else nodes
         finite = np.isfinite(ranges)
         q2 = np.zeros(beams, dtype=np.uint16)
         q2[finite] = np.clip(np.rint(ranges[finite] * 4000.0), 1, 0xFFFF)
         step = rp.ANGLE_FULL_Q6 / n
-        offset = self._node_rng.uniform(0.0, 0.9) if self.rpm_jitter else 0.0
-        jit = self._node_rng.uniform(-self.jitter, self.jitter, n)
+        offset = rng.uniform(0.0, 0.9) if self.rpm_jitter else 0.0
+        jit = rng.uniform(-self.jitter, self.jitter, n)
         sampled = (np.arange(n) + offset + jit) * step
         dist = q2[rp.bin_index(np.clip(np.rint(sampled), 0, rp.ANGLE_FULL_Q6 - 1), beams)]
         if self.parallax:
@@ -223,20 +225,25 @@ class RplidarDevice(PtyDevice):
         data = rp.encode_nodes(np.arange(n) == 0, quality, angle_q6, dist)
         return data, rp.bin_nodes(angle_q6, dist, beams)
 
-    def _nodes_per_turn(self) -> int:
+    def _nodes_per_turn(self, rng: np.random.Generator) -> int:
         assert self.source is not None
         beams = self.source.sensor.geometry.num_beams
         if not self.rpm_jitter:
             return beams
-        return max(8, round(beams * (1 + self._node_rng.uniform(-self.rpm_jitter,
-                                                                    self.rpm_jitter))))
+        return max(8, round(beams * (1 + rng.uniform(-self.rpm_jitter, self.rpm_jitter))))
 
     def _start_turn(self, k: int) -> None:
+        """Turn ``k``: its nodes and their damage on the wire drawn for it alone, so that it
+        is the same turn in every run, whatever the timing of the host that reads it."""
         assert self.source is not None
-        n = self._nodes_per_turn()
-        data, q2 = self.turn_bytes(self.source.ranges(k), n)
+        rng = self.scan_rng(k, 1)
+        n = self._nodes_per_turn(rng)
+        data, q2 = self.turn_bytes(self.source.ranges(k), n, rng)
+        wire, changed = self.corrupt_scan(data, k)
+        record = self.record(k, q2)
+        record.intact = not changed
         self.turns_sent += 1
-        self._turn = _Turn(data, n, k * self.source.period, 0, self.record(k, q2))
+        self._turn = _Turn(wire, n, k * self.source.period, 0, record)
 
     def _start_mid_revolution(self) -> None:
         """After SCAN: the rest of the revolution under way, without a start flag, no scan."""
@@ -247,12 +254,14 @@ class RplidarDevice(PtyDevice):
         c = min(int(now / period), len(self.source) - 1)
         if c < 0 or c + 1 >= len(self.source):
             return
-        n = self._nodes_per_turn()
-        data, _ = self.turn_bytes(self.source.ranges(c), n)
+        rng = self.scan_rng(c, 2)
+        n = self._nodes_per_turn(rng)
+        data, _ = self.turn_bytes(self.source.ranges(c), n, rng)
         a = bytearray(data)
         a[0] = (a[0] & 0xFC) | 0b10  # S = 0 on the first node too
         first = min(n - 1, math.ceil((now - c * period) / period * n))  # one node at least
-        self._turn = _Turn(bytes(a), n, c * period, first, None)
+        wire, _ = self.corruption.corrupt(bytes(a), self.scan_rng(c, 3))[:2]
+        self._turn = _Turn(wire, n, c * period, first, None)
         self._next_scan = max(self._next_scan, c + 1)
 
     def _stream_turn(self) -> bool:
@@ -264,8 +273,10 @@ class RplidarDevice(PtyDevice):
             due = min(t.nodes, max(0, math.floor(frac * t.nodes) + 1))
         else:
             due = t.nodes
-        if due > t.sent:
-            self.send(t.data[t.sent * rp.NODE_SIZE:due * rp.NODE_SIZE], scan=t.record)
+        if due > t.sent:  # the wire may have dropped or added bytes: their share of them
+            size = len(t.data)
+            self.send(t.data[size * t.sent // t.nodes:size * due // t.nodes], scan=t.record,
+                      corrupt=False)
             t.sent = due
         if t.sent < t.nodes:
             return False
