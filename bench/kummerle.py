@@ -7,7 +7,9 @@ the bench extra) and ``vmp map LOG`` as whole processes, timing each from outsid
 vmp-slam's trajectory on the log's relations (Kuemmerle et al. 2009: the error of every
 relative motion between two stamped poses). It prints, per log, the translational and
 rotational error (mean +- std), the loop edges in the graph and how many the robust adjustment
-down-weighted, the wall time, the real-time factor and the ratio to KISS-ICP's time; writes the
+down-weighted, the wall time, the real-time factor and the ratio to KISS-ICP's time (the
+median of the ratios of each pair run in turn, wall and CPU: user plus system time of the
+process and its threads, which another load on the machine moves less); writes the
 table beside the published figures into docs/benchmarks.md and each map to
 docs/maps/kummerle_NAME.png. Each ``vmp map`` goes to a temporary results folder.
 """
@@ -17,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import resource
 import shutil
 import statistics
 import subprocess
@@ -56,31 +59,38 @@ def logs(only: str | None = None) -> list[tuple[str, Path, Path]]:
     return out
 
 
-def timed(cmd: list[str]) -> float:
-    """Wall time of a whole process; its output is kept only when it fails."""
+def cpu_of_children() -> float:
+    """User plus system seconds of the finished child processes so far."""
+    used = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return used.ru_utime + used.ru_stime
+
+
+def timed(cmd: list[str]) -> tuple[float, float]:
+    """Wall and CPU time of a whole process; its output is kept only when it fails."""
+    cpu = cpu_of_children()
     t = time.perf_counter()
     done = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t
     if done.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-2000:]}")
-    return wall
+    return wall, cpu_of_children() - cpu
 
 
-def vmp_map(log: Path, out: Path) -> float:
+def vmp_map(log: Path, out: Path) -> tuple[float, float]:
     return timed([sys.executable, "-m", "vmp", "map", str(log), "--out", str(out), "-q"])
 
 
-def kiss_icp(log: Path) -> float:
+def kiss_icp(log: Path) -> tuple[float, float]:
     return timed([sys.executable, str(HERE / "kiss_icp_odometry.py"), str(log),
                   "--voxel", "0.25", "--threads", "2"])
 
 
 def measure(name: str, log: Path, relations: Path, repeat: int, kiss: bool, work: Path) -> dict:
-    walls, kiss_walls = [], []
+    runs, kiss_runs = [], []  # (wall, cpu) of each
     for k in range(repeat):
         if kiss:
-            kiss_walls.append(kiss_icp(log))
-        walls.append(vmp_map(log, work / f"{name}-{k}"))
+            kiss_runs.append(kiss_icp(log))
+        runs.append(vmp_map(log, work / f"{name}-{k}"))
     folder = work / f"{name}-{repeat - 1}" / "latest"
     stamps, poses = read_tum(folder / "trajectory.tum")
     err = relation_error(stamps, poses, read_relations(relations))
@@ -88,14 +98,26 @@ def measure(name: str, log: Path, relations: Path, repeat: int, kiss: bool, work
     MAPS.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(folder / "grid.png", MAPS / f"kummerle_{name}.png")
     duration = float(stamps.max() - stamps.min())
-    wall = statistics.median(walls)
+    wall = statistics.median(w for w, _ in runs)
     row = {"name": name, "scans": len(stamps), "trans": err.trans_mean, "trans_std": err.trans_std,
            "rot": math.degrees(err.rot_mean), "rot_std": math.degrees(err.rot_std),
            "relations": err.used, "loops": metrics.get("loop edges in the graph", 0),
            "down": metrics.get("loop edges down-weighted", 0), "wall": wall,
+           "cpu": statistics.median(c for _, c in runs),
            "delay": metrics.get("odometry delay learned (s)", 0.0),
-           "rt": duration / wall, "kiss": statistics.median(kiss_walls) if kiss_walls else None}
-    kiss_text = f", KISS-ICP {row['kiss']:.1f} s (x{wall / row['kiss']:.1f})" if kiss else ""
+           "rt": duration / wall, "kiss": None}
+    kiss_text = ""
+    if kiss_runs:
+        # ratios of the runs made in turn, then their median: each pair met the same load
+        row.update(kiss=statistics.median(w for w, _ in kiss_runs),
+                   kiss_cpu=statistics.median(c for _, c in kiss_runs),
+                   ratio=statistics.median(a[0] / b[0]
+                                           for a, b in zip(runs, kiss_runs, strict=True)),
+                   cpu_ratio=statistics.median(a[1] / b[1]
+                                               for a, b in zip(runs, kiss_runs, strict=True)))
+        kiss_text = (f", KISS-ICP {row['kiss']:.1f} s (x{row['ratio']:.1f} in turn; CPU "
+                     f"{row['cpu']:.1f} s against {row['kiss_cpu']:.1f} s, "
+                     f"x{row['cpu_ratio']:.1f})")
     print(f"{name}: {row['trans']:.4f} +- {row['trans_std']:.4f} m, {row['rot']:.2f} +- "
           f"{row['rot_std']:.2f} deg on {row['relations']} relations; {row['loops']} loop edges "
           f"({row['down']} down-weighted); odometry delay {row['delay']:.3f} s; "
@@ -109,22 +131,26 @@ def table(rows: list[dict], repeat: int) -> str:
              f"`python bench/kummerle.py --repeat {repeat}` on {machine()}: every log in "
              "`../shared/data` with a relations file, mapped by `vmp map LOG` with the default "
              "configuration; times are whole processes (median of the repeats), KISS-ICP "
-             "(odometry only, voxel 0.25 m, 2 threads) run in turn on the same log. Published "
+             "(odometry only, voxel 0.25 m, 2 threads) run in turn on the same log; the "
+             "ratios are medians of the ratios of the pairs run in turn, of wall time and of "
+             "CPU time (user + system, all threads). Published "
              "figures are on the full data sets (the Intel log here is its first 1,089 s).", "",
              "| log | vmp-slam trans (m) | vmp-slam rot (deg) | loop edges (down-weighted) | "
-             "odometry delay learned | wall | real time | / KISS-ICP | Cartographer | "
-             "graph mapping |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "odometry delay learned | wall | real time | / KISS-ICP | CPU / KISS-ICP CPU | "
+             "Cartographer | graph mapping |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         pub = PUBLISHED.get(r["name"])
         cart = f"{pub[0]} m, {pub[1]} deg" if pub else "-"
         gm = f"{pub[2]} m, {pub[3]} deg" if pub else "-"
-        ratio = f"{r['wall'] / r['kiss']:.1f} ({r['kiss']:.1f} s)" if r["kiss"] else "-"
+        ratio = f"{r['ratio']:.1f} ({r['kiss']:.1f} s)" if r["kiss"] else "-"
+        cpu = (f"{r['cpu_ratio']:.1f} ({r['cpu']:.1f} s / {r['kiss_cpu']:.1f} s)"
+               if r["kiss"] else "-")
         lines.append(f"| {r['name']} ({r['relations']} relations) | {r['trans']:.4f} +- "
                      f"{r['trans_std']:.4f} | {r['rot']:.2f} +- {r['rot_std']:.2f} | "
                      f"{r['loops']} ({r['down']}) | {r['delay']:.3f} s | {r['wall']:.1f} s | "
                      f"{r['rt']:.1f}x | "
-                     f"{ratio} | {cart} | {gm} |")
+                     f"{ratio} | {cpu} | {cart} | {gm} |")
     lines += ["", "Maps: " + ", ".join(f"[{r['name']}](maps/kummerle_{r['name']}.png)"
                                         for r in rows) + ".", ""]
     return "\n".join(lines)
