@@ -19,16 +19,13 @@ from __future__ import annotations
 import argparse
 import csv
 import os
-import resource
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from report import machine, write_section
+from report import machine, run_timed, write_section
 
 from vmp.cli.batch import TIMING
 
@@ -52,15 +49,7 @@ def run_command(source: str, out: Path, serial: bool, workers: int | None) -> Ti
     """``vmp batch SOURCE`` (``--serial`` or on a local cluster) into ``out``, timed."""
     cmd = [sys.executable, "-m", "vmp", "batch", source, "-q", "--out", str(out)]
     cmd += ["--serial"] if serial else ([] if workers is None else ["--workers", str(workers)])
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    start = time.perf_counter()
-    done = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    wall = time.perf_counter() - start
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if done.returncode != 0:
-        raise SystemExit(f"bench: '{' '.join(cmd)}' failed ({done.returncode}): "
-                         f"{done.stderr.strip()[-500:]}")
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    wall, cpu = run_timed(cmd)
     with open(out / "batch.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     return Timed(wall, cpu, rows)

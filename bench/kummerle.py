@@ -19,18 +19,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import resource
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from report import machine, write_section
+from report import machine, run_timed, write_section
 
 from vmp.evaluate import read_relations, relation_error
 from vmp.tum import read_tum
@@ -59,29 +56,12 @@ def logs(only: str | None = None) -> list[tuple[str, Path, Path]]:
     return out
 
 
-def cpu_of_children() -> float:
-    """User plus system seconds of the finished child processes so far."""
-    used = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return used.ru_utime + used.ru_stime
-
-
-def timed(cmd: list[str]) -> tuple[float, float]:
-    """Wall and CPU time of a whole process; its output is kept only when it fails."""
-    cpu = cpu_of_children()
-    t = time.perf_counter()
-    done = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - t
-    if done.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stderr[-2000:]}")
-    return wall, cpu_of_children() - cpu
-
-
 def vmp_map(log: Path, out: Path) -> tuple[float, float]:
-    return timed([sys.executable, "-m", "vmp", "map", str(log), "--out", str(out), "-q"])
+    return run_timed([sys.executable, "-m", "vmp", "map", str(log), "--out", str(out), "-q"])
 
 
 def kiss_icp(log: Path) -> tuple[float, float]:
-    return timed([sys.executable, str(HERE / "kiss_icp_odometry.py"), str(log),
+    return run_timed([sys.executable, str(HERE / "kiss_icp_odometry.py"), str(log),
                   "--voxel", "0.25", "--threads", "2"])
 
 

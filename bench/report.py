@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import platform
 import re
+import resource
 import statistics
+import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -44,6 +46,20 @@ def median_time(fn: Callable[[], object], repeat: int) -> tuple[float, list[floa
         fn()
         times.append(time.perf_counter() - t)
     return statistics.median(times), times
+
+
+def run_timed(cmd: list[str]) -> tuple[float, float]:
+    """Run a whole command; its wall time and the CPU (user + system) of it and everything it
+    started, in seconds. Its output is dropped; a failure ends the bench with its stderr."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    done = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise SystemExit(f"bench: '{' '.join(cmd)}' failed ({done.returncode}):\n"
+                         f"{done.stderr.strip()[-2000:]}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def write_section(name: str, body: str) -> None:

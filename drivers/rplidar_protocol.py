@@ -259,6 +259,12 @@ def _window_dist(a: np.ndarray) -> np.ndarray:
     return a[3:-1].astype(np.int64) | (a[4:].astype(np.int64) << 8)
 
 
+def _falls_back(prev: np.ndarray | int, cur: np.ndarray | int) -> np.ndarray | bool:
+    """Whether angle ``cur`` lies more than half a circle behind ``prev`` (angle_q6): where a
+    new revolution begins."""
+    return cur < prev - ANGLE_FULL_Q6 // 2
+
+
 def _follows(prev: np.ndarray, cur: np.ndarray, ahead: np.ndarray | int,
              back: int) -> np.ndarray:
     """Whether angle ``cur`` can follow ``prev`` in a scan: at most ``ahead`` further round
@@ -352,8 +358,7 @@ class NodeDecoder:
         doubt at ``suspect``, begins a new revolution (its angle falls back by more than half
         a circle) without a start flag: not a node the device sent, but the held node's last
         byte read with the damaged start node after it, so the held node stands."""
-        wraps = int(ang[found]) < int(ang[suspect]) - ANGLE_FULL_Q6 // 2
-        return wraps and not start[found]
+        return bool(_falls_back(int(ang[suspect]), int(ang[found]))) and not start[found]
 
     def flush(self) -> Nodes:
         """The node held back for the window after it (the stream has paused)."""
@@ -682,7 +687,7 @@ class TurnAssembler:
         than half a circle; ``default`` if none does. The nodes before it belong to this
         turn even when the next turn's start node was lost."""
         angle = nodes.angle_q6[first:last + 1].astype(np.int64)
-        back = np.flatnonzero(np.diff(angle) < -(ANGLE_FULL_Q6 // 2))
+        back = np.flatnonzero(_falls_back(angle[:-1], angle[1:]))
         return first + 1 + int(back[0]) if back.size else default
 
     def check(self, nodes: Nodes) -> str | None:

@@ -314,11 +314,11 @@ class PtyDevice:
         comes out the same whenever it is sent and however its bytes are cut up."""
         return np.random.default_rng((self.seed, seq, stream))
 
-    def corrupt_scan(self, data: bytes, seq: int) -> tuple[bytes, bool]:
+    def corrupt_scan(self, data: bytes, seq: int, stream: int = 0) -> tuple[bytes, bool]:
         """The whole of scan ``seq``'s bytes as the wire delivers them, and whether any was
         hit (the same for the same scan in every run; a burst still owed runs into it and
-        on into what follows)."""
-        out, changed, self._burst = self.corruption.corrupt(data, self.scan_rng(seq, 0),
+        on into what follows); ``stream`` as for :meth:`scan_rng`."""
+        out, changed, self._burst = self.corruption.corrupt(data, self.scan_rng(seq, stream),
                                                             self._burst)
         return out, changed
 

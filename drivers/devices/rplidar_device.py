@@ -260,7 +260,7 @@ class RplidarDevice(PtyDevice):
         a = bytearray(data)
         a[0] = (a[0] & 0xFC) | 0b10  # S = 0 on the first node too
         first = min(n - 1, math.ceil((now - c * period) / period * n))  # one node at least
-        wire, _ = self.corruption.corrupt(bytes(a), self.scan_rng(c, 3))[:2]
+        wire, _ = self.corrupt_scan(bytes(a), c, 3)
         self._turn = _Turn(wire, n, c * period, first, None)
         self._next_scan = max(self._next_scan, c + 1)
 
