@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vmp.config import RegistrationConfig
+from vmp.icp_kernel import CELL, cell_keys, run_icp
 from vmp.types import FloatArray, transform_points
 
 __all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "last_gate",
@@ -25,7 +26,7 @@ __all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "last
 MIN_POINTS = 20  # a scan with fewer returns is neither registered nor matched
 # The ICP's own settings (lengths in metres, angles in radians).
 MAX_ITERATIONS = 30
-START_DISTANCE = 0.5  # correspondence gate of the first iteration
+START_DISTANCE = CELL  # correspondence gate of the first iteration (the kernel's cell side)
 MIN_DISTANCE = 0.08  # the gate shrinks to this
 HUBER = 0.03  # residuals beyond this get Huber-down-weighted
 TOLERANCE = 5e-4  # stop when a step moves less than this
@@ -71,7 +72,11 @@ class Reference:
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
             raise ValueError(f"a reference needs at least 3 points (N, 2), got {pts.shape}")
-        self.points = pts
+        # Sorted by grid cell, as the compiled ICP looks its neighbours up (vmp.icp_kernel).
+        keys = cell_keys(pts)
+        order = np.argsort(keys, kind="stable")
+        self.cell_keys = np.ascontiguousarray(keys[order])
+        pts = self.points = np.ascontiguousarray(pts[order])
         self.tree = cKDTree(pts)
         k = min(NEIGHBOURS, len(pts))
         dist, idx = self.tree.query(pts, k=k)
@@ -95,15 +100,6 @@ class Reference:
         major = tr / 2 + disc
         self.valid = (cnt >= 3) & (minor <= 0.1 * np.maximum(major, 1e-12))
         self.corner = (cnt >= 3) & ~self.valid
-        # The same with one more entry, False, for the index a query gives a point that has
-        # no neighbour within the gate (the number of points): one gather finds the matches.
-        self.line_of = np.append(self.valid, False)
-        self.corner_of = np.append(self.corner, False)
-        # Normal and point of each row side by side: one gather per ICP iteration. The
-        # normals and points are views into it (a loop search's cached submaps hold tens of
-        # thousands of points each: one copy, not two).
-        self.lines = np.concatenate([self.normals, pts], axis=1)
-        self.normals, self.points = self.lines[:, :2], self.lines[:, 2:]
 
 
 def fits(reg: Registration, config: RegistrationConfig) -> bool:
@@ -144,91 +140,21 @@ def register(reference: Reference, points: FloatArray, initial: FloatArray,
 
 def _icp(reference: Reference, pts: FloatArray, initial: FloatArray,
          corners: bool) -> tuple[Registration, list[FloatArray]]:
-    """One ICP run from ``initial``; the registration and the directions of translation its
-    fit leaves free (:func:`_free_directions`; none when nothing was matched)."""
-    x, y, th = (float(v) for v in initial)
-    gate = START_DISTANCE
-    converged = False
-    it = 0
-    H = np.zeros((3, 3))
-    rms = np.inf
-    inliers = 0.0
-    wsum = 0.0
-    for it in range(1, MAX_ITERATIONS + 1):  # noqa: B007 - a few iterations, each vectorised
-        cth, sth = math.cos(th), math.sin(th)
-        q = pts @ np.array([[cth, sth], [-sth, cth]])
-        q += (x, y)
-        _, idx = reference.tree.query(q, distance_upper_bound=gate)
-        line = reference.line_of[idx]
-        corner = reference.corner_of[idx] if corners else None
-        im = idx[line]
-        n_matched = len(im)
-        if corners:
-            n_matched += int(np.count_nonzero(corner))
-        if n_matched < 6:
-            break
-        # Point to line: one residual along the reference normal per matched point.
-        qm = q[line]
-        ref = reference.lines[im]  # (K, 4): normal, point
-        e = ((qm - ref[:, 2:]) * ref[:, :2]).sum(axis=1)
-        w = np.minimum(1.0, HUBER / np.maximum(np.abs(e), 1e-12))  # Huber
-        J = np.empty((len(e), 3))
-        J[:, :2] = ref[:, :2]
-        J[:, 2] = ref[:, 1] * qm[:, 0] - ref[:, 0] * qm[:, 1]
-        if corners and corner.any():
-            # Point to point: two residuals (x, y) per corner point, Huber on their length.
-            qc = q[corner]
-            dc = qc - reference.points[idx[corner]]
-            ac = np.hypot(dc[:, 0], dc[:, 1])
-            wc = CORNER_WEIGHT * np.where(ac <= HUBER, 1.0, HUBER / np.maximum(ac, 1e-12))
-            Jc = np.zeros((2 * len(qc), 3))
-            Jc[0::2, 0] = 1.0
-            Jc[0::2, 2] = -qc[:, 1]
-            Jc[1::2, 1] = 1.0
-            Jc[1::2, 2] = qc[:, 0]
-            J = np.concatenate([J, Jc])
-            e = np.concatenate([e, dc.ravel()])
-            w = np.concatenate([w, np.repeat(wc, 2)])
-        Jw = J * w[:, None]
-        H = Jw.T @ J
-        wsum = float(w.sum())
-        g = Jw.T @ e
-        delta = _solve_symmetric(H, g)
-        if delta is None:
-            break
-        # Left-compose the step: rotate the pose about the origin, then translate.
-        dx, dy, dth = delta
-        cd, sd = math.cos(dth), math.sin(dth)
-        x, y = dx + cd * x - sd * y, dy + sd * x + cd * y
-        th = (th + dth + math.pi) % (2 * math.pi) - math.pi
-        rms = math.sqrt(float(w @ (e * e)) / wsum)
-        inliers = n_matched / len(pts)
-        gate = min(gate, last_gate(rms))
-        if max(abs(dx), abs(dy), abs(dth)) < TOLERANCE:
-            converged = True
-            break
+    """One ICP run from ``initial`` (compiled: :mod:`vmp.icp_kernel`); the registration and
+    the directions of translation its fit leaves free (:func:`_free_directions`; none when
+    nothing was matched)."""
+    x, y, th, H, rms, inliers, wsum, it, converged = run_icp(
+        reference.cell_keys, reference.points, reference.normals, reference.valid,
+        reference.corner,
+        np.ascontiguousarray(pts), float(initial[0]), float(initial[1]), float(initial[2]),
+        corners, START_DISTANCE, MIN_DISTANCE, HUBER, CORNER_WEIGHT, TOLERANCE,
+        MAX_ITERATIONS)
     fitted = math.isfinite(rms) and wsum > 0
     free = _free_directions(H, wsum) if fitted else []
     reg = Registration(pose=np.array([x, y, th]), rms=rms, inliers=inliers,
                        covariance=_covariance(H, rms, free) if fitted else _unfitted(),
                        iterations=it, converged=converged)
     return reg, free
-
-
-def _solve_symmetric(H: FloatArray, g: FloatArray) -> tuple[float, float, float] | None:
-    """``-(H + 1e-9 I)^-1 g`` for a symmetric 3 x 3 ``H`` by its cofactors, or None when it is
-    singular. (``numpy.linalg.solve`` costs about 20 microseconds a call here, a fifth of an
-    ICP iteration; this costs a few.)"""
-    (a, b, c), (_, d, e), (_, _, f) = H.tolist()
-    a, d, f = a + 1e-9, d + 1e-9, f + 1e-9
-    ca, cb, cc = d * f - e * e, c * e - b * f, b * e - c * d
-    det = a * ca + b * cb + c * cc
-    if not math.isfinite(det) or det == 0.0:
-        return None
-    cd, ce, cf = a * f - c * c, b * c - a * e, a * d - b * b
-    g0, g1, g2 = g.tolist()
-    return (-(ca * g0 + cb * g1 + cc * g2) / det, -(cb * g0 + cd * g1 + ce * g2) / det,
-            -(cc * g0 + ce * g1 + cf * g2) / det)
 
 
 def _free_directions(H: FloatArray, wsum: float) -> list[FloatArray]:
