@@ -23,6 +23,7 @@ import numpy as np
 from scipy.sparse import csc_matrix, identity
 from scipy.sparse.linalg import splu
 
+from vmp.graph_kernel import edge_terms
 from vmp.types import FloatArray, relative, wrap_angle
 
 __all__ = ["ROBUST_C2", "Edge", "Marginals", "PoseGraph"]
@@ -201,26 +202,9 @@ class PoseGraph:
                                                              FloatArray]:
             """The weighted cost, ``H`` and ``g`` of the normal equations, and each edge's
             unweighted chi^2."""
-            c, s = np.cos(p[i, 2]), np.sin(p[i, 2])
-            d = p[j, :2] - p[i, :2]
-            e = np.empty((m, 3))
-            e[:, 0] = c * d[:, 0] + s * d[:, 1] - z[:, 0]
-            e[:, 1] = -s * d[:, 0] + c * d[:, 1] - z[:, 1]
-            e[:, 2] = wrap_angle(p[j, 2] - p[i, 2] - z[:, 2])
-            D = np.zeros((m, 3, 6))  # d e / d (pose_i, pose_j)
-            D[:, 0, 0], D[:, 0, 1] = -c, -s
-            D[:, 1, 0], D[:, 1, 1] = s, -c
-            D[:, 0, 2] = -s * d[:, 0] + c * d[:, 1]
-            D[:, 1, 2] = -c * d[:, 0] - s * d[:, 1]
-            D[:, 2, 2] = -1.0
-            D[:, 0, 3], D[:, 0, 4] = c, s
-            D[:, 1, 3], D[:, 1, 4] = -s, c
-            D[:, 2, 5] = 1.0
-            omega_e = np.einsum("kab,kb->ka", info, e)
-            chi2 = (e * omega_e).sum(axis=1)
-            wd = w[:, None, None] * np.einsum("kab,kbc->kac", info, D)  # W Omega D
-            H = normal.matrix(np.einsum("kab,kac->kbc", D, wd))
-            g = normal.gradient(np.einsum("kab,ka->kb", D, w[:, None] * omega_e))
+            chi2, blocks, grads = edge_terms(p, i, j, z, info, w)
+            H = normal.matrix(blocks)
+            g = normal.gradient(grads)
             return float(w @ chi2), H, g, chi2
 
         w = np.ones(m)
