@@ -30,9 +30,12 @@ def star_polygons(n=30, seed=0):
     return c + np.stack([r * np.cos(ang), r * np.sin(ang)], -1)
 
 
-def test_vectorised_fill_matches_shapely_cell_by_cell():
+@pytest.mark.parametrize(("origin", "shape"), [((-4.0, -4.0), (360, 380)),
+                                               # polygons cut by every side of the grid
+                                               ((1.0, 2.0), (90, 110))])
+def test_rasterised_fill_matches_shapely_cell_by_cell(origin, shape):
     polys = star_polygons()
-    res, origin, shape = 0.05, (-4.0, -4.0), (360, 380)
+    res = 0.05
     cov = coverage(polys, origin, res, shape)
     xs = origin[0] + (np.arange(shape[1]) + 0.5) * res
     ys = origin[1] + (np.arange(shape[0]) + 0.5) * res
