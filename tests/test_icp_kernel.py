@@ -9,12 +9,18 @@ from scipy.spatial import cKDTree
 
 from drivers.scenario import load_scenario
 from drivers.simulator import Simulator
-from vmp.icp_kernel import _nearest, run_icp
+from vmp.icp_kernel import _nearest, fit_covariance, run_icp
 from vmp.registration import (
     CORNER_WEIGHT,
+    COVARIANCE_SCALE,
+    DEGENERATE_SHARE,
     HUBER,
     MAX_ITERATIONS,
+    MAX_SIGMA,
+    MIN_CONSTRAINT,
     MIN_DISTANCE,
+    MIN_SIGMA_THETA,
+    MIN_SIGMA_XY,
     START_DISTANCE,
     TOLERANCE,
     Reference,
@@ -122,3 +128,71 @@ def test_a_pose_gone_to_nan_matches_nothing():
                   math.nan, 0.0, 0.0, True, START_DISTANCE, MIN_DISTANCE, HUBER, CORNER_WEIGHT,
                   TOLERANCE, MAX_ITERATIONS)
     assert math.isinf(out[4]) and out[6] == 0.0 and out[7] == 1  # no fit, stopped at once
+
+
+def _numpy_covariance(H, rms, wsum):
+    """The fit's covariance and free directions as NumPy computed them."""
+    tv, tvec = np.linalg.eigh(H[:2, :2])
+    free = [v for amount, v in zip(tv, tvec.T, strict=True)
+            if amount < MIN_CONSTRAINT or amount < DEGENERATE_SHARE * wsum]
+    big = MAX_SIGMA**2
+    sigma2 = max(rms, MIN_SIGMA_XY) ** 2 * COVARIANCE_SCALE
+    vals, vecs = np.linalg.eigh(H)
+    inv = np.where(vals > sigma2 / big, 1.0 / np.maximum(vals, 1e-300), big / sigma2)
+    cov = sigma2 * (vecs * inv) @ vecs.T
+    for v in free:
+        cov[:2, :2] += big * np.outer(v, v)
+    return cov + np.diag([MIN_SIGMA_XY**2, MIN_SIGMA_XY**2, MIN_SIGMA_THETA**2]), len(free)
+
+
+def test_the_fits_covariance_is_the_numpy_one():
+    rng = np.random.default_rng(11)
+    frees = set()
+    for _ in range(300):
+        # Normals of matched points: some fits all along one wall (a corridor), some not.
+        spread = rng.choice([0.02, 1.0])
+        angle = rng.normal(0, spread, int(rng.integers(10, 200)))
+        n = np.column_stack([np.cos(angle), np.sin(angle)])
+        q = rng.uniform(-5, 5, (len(n), 2))
+        J = np.column_stack([n, n[:, 1] * q[:, 0] - n[:, 0] * q[:, 1]])
+        w = rng.uniform(0.2, 1, len(n))
+        H = (J * w[:, None]).T @ J
+        rms = float(rng.uniform(0.001, 0.05))
+        got, free = fit_covariance(H, rms, float(w.sum()), MIN_CONSTRAINT, DEGENERATE_SHARE,
+                                   COVARIANCE_SCALE, MIN_SIGMA_XY, MIN_SIGMA_THETA, MAX_SIGMA)
+        want, want_free = _numpy_covariance(H, rms, float(w.sum()))
+        assert free == want_free
+        np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-12)
+        frees.add(free)
+    assert frees >= {0, 1}  # both kinds of fit were compared
+
+
+def test_point_normals_are_the_k_d_trees():
+    """Normals and kinds of reference points as they were computed from a k-d tree's five
+    nearest neighbours."""
+    from vmp.registration import MAX_NORMAL_SPREAD, NEIGHBOURS
+    rng = np.random.default_rng(2)
+    t = rng.uniform(0, 10, 300)
+    pts = np.concatenate([np.column_stack([t, 2 + 0.5 * t + rng.normal(0, 0.003, 300)]),
+                          rng.uniform(-2, 12, (200, 2)),  # sparse: some isolated, some not
+                          rng.normal([5.0, -3.0], 0.05, (40, 2))])  # a post: no line
+    ref = Reference(pts)
+    p = ref.points
+    dist, idx = cKDTree(p).query(p, k=NEIGHBOURS)
+    nb = p[idx]
+    w = (dist <= MAX_NORMAL_SPREAD).astype(np.float64)
+    cnt = w.sum(axis=1)
+    mean = (nb * w[..., None]).sum(axis=1) / cnt[:, None]
+    d = (nb - mean[:, None, :]) * w[..., None]
+    sxx, syy = (d[..., 0] ** 2).sum(axis=1), (d[..., 1] ** 2).sum(axis=1)
+    sxy = (d[..., 0] * d[..., 1]).sum(axis=1)
+    angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    normals = np.stack([-np.sin(angle), np.cos(angle)], axis=-1)
+    tr, det = sxx + syy, sxx * syy - sxy**2
+    disc = np.sqrt(np.maximum(tr**2 / 4 - det, 0.0))
+    valid = (cnt >= 3) & (tr / 2 - disc <= 0.1 * np.maximum(tr / 2 + disc, 1e-12))
+    corner = (cnt >= 3) & ~valid
+    assert valid.sum() > 250 and corner.sum() > 20 and (cnt < 3).sum() > 20
+    np.testing.assert_array_equal(ref.valid, valid)
+    np.testing.assert_array_equal(ref.corner, corner)
+    np.testing.assert_allclose(ref.normals, normals, rtol=0, atol=1e-12)

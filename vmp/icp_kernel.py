@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["CELL", "cell_keys", "run_icp"]
+__all__ = ["CELL", "cell_keys", "fit_covariance", "point_normals", "run_icp"]
 
 CELL = 0.5  # cell side (m): the widest correspondence gate, so a gate looks at 3 x 3 cells
 _OFFSET = 1 << 30  # cell coordinates are clipped to +-2^30 cells (5e8 m) and shifted positive
@@ -161,3 +161,116 @@ def _solve_symmetric(a, b, c, d, e, f, g0, g1, g2):  # pragma: no cover - compil
     cf = a * d - b * b
     return (True, -(ca * g0 + cb * g1 + cc * g2) / det, -(cb * g0 + cd * g1 + ce * g2) / det,
             -(cc * g0 + ce * g1 + cf * g2) / det)
+
+
+@njit(cache=True, nogil=True)
+def fit_covariance(H, rms, wsum, min_constraint, degenerate_share, scale, min_sigma_xy,
+                   min_sigma_theta, max_sigma):  # pragma: no cover - compiled
+    """The covariance of a fit with normal matrix ``H``, and how many directions of
+    translation it leaves free: ``s^2 H^-1`` with ``s^2 = scale * max(rms, min_sigma_xy)^2``,
+    directions ``H`` barely constrains opened to ``max_sigma``, each direction of translation
+    that few matched normals face (``H``'s xy eigenvalue under ``min_constraint`` or under
+    ``degenerate_share`` of the summed weights) opened up too, plus a floor. (See
+    :func:`vmp.registration._covariance`; two NumPy ``eigh`` calls cost about 30
+    microseconds a registration.)"""
+    big = max_sigma * max_sigma
+    tv, tvec = np.linalg.eigh(H[:2, :2].copy())
+    s = max(rms, min_sigma_xy)
+    sigma2 = s * s * scale
+    vals, vecs = np.linalg.eigh(H.copy())
+    cov = np.zeros((3, 3))
+    for k in range(3):
+        inv = 1.0 / max(vals[k], 1e-300) if vals[k] > sigma2 / big else big / sigma2
+        for r in range(3):
+            for c in range(3):
+                cov[r, c] += vecs[r, k] * inv * vecs[c, k]
+    for r in range(3):
+        for c in range(3):
+            cov[r, c] *= sigma2
+    free = 0
+    for k in range(2):
+        if tv[k] < min_constraint or tv[k] < degenerate_share * wsum:
+            free += 1
+            for r in range(2):
+                for c in range(2):
+                    cov[r, c] += big * tvec[r, k] * tvec[c, k]
+    cov[0, 0] += min_sigma_xy * min_sigma_xy
+    cov[1, 1] += min_sigma_xy * min_sigma_xy
+    cov[2, 2] += min_sigma_theta * min_sigma_theta
+    return cov, free
+
+
+@njit(cache=True, nogil=True)
+def point_normals(keys, points, k, max_spread):  # pragma: no cover - compiled
+    """Per point of a reference sorted by :func:`cell_keys`: the normal of the line through
+    its ``k`` nearest points (itself included) that lie within ``max_spread`` (``max_spread``
+    at most :data:`CELL`), whether they lie on a line (``line``: at least three, the minor
+    axis of their scatter under a tenth of the major) and whether they do not (``corner``:
+    at least three, no line). (SciPy's k-d tree built for this alone cost a third of a
+    reference's building, which scan odometry and every new milestone do.)"""
+    n = points.shape[0]
+    normals = np.empty((n, 2))
+    line = np.zeros(n, dtype=np.bool_)
+    corner = np.zeros(n, dtype=np.bool_)
+    best_d = np.empty(k)
+    best_i = np.empty(k, dtype=np.int64)
+    limit = max_spread * max_spread
+    for p in range(n):
+        px = points[p, 0]
+        py = points[p, 1]
+        found = 0
+        cx = int(min(max(math.floor(px / CELL), -_OFFSET), _OFFSET - 1)) + _OFFSET
+        cy = int(min(max(math.floor(py / CELL), -_OFFSET), _OFFSET - 1)) + _OFFSET
+        for col in range(cx - 1, cx + 2):
+            lo = np.searchsorted(keys, col * _STRIDE + cy - 1)
+            hi = np.searchsorted(keys, col * _STRIDE + cy + 1, side="right")
+            for q in range(lo, hi):
+                dx = points[q, 0] - px
+                dy = points[q, 1] - py
+                d2 = dx * dx + dy * dy
+                if d2 > limit or (found == k and d2 >= best_d[k - 1]):
+                    continue
+                # Insert in distance order (ties: the lower row first).
+                if found < k:
+                    at = found
+                    found += 1
+                else:
+                    at = k - 1  # the farthest kept gives way
+                while at > 0 and (best_d[at - 1] > d2 or (best_d[at - 1] == d2
+                                                          and best_i[at - 1] > q)):
+                    best_d[at] = best_d[at - 1]
+                    best_i[at] = best_i[at - 1]
+                    at -= 1
+                best_d[at] = d2
+                best_i[at] = q
+        mx = 0.0
+        my = 0.0
+        for t in range(found):
+            mx += points[best_i[t], 0]
+            my += points[best_i[t], 1]
+        mx /= found
+        my /= found
+        sxx = 0.0
+        syy = 0.0
+        sxy = 0.0
+        for t in range(found):
+            dx = points[best_i[t], 0] - mx
+            dy = points[best_i[t], 1] - my
+            sxx += dx * dx
+            syy += dy * dy
+            sxy += dx * dy
+        # Direction of the line through the neighbours: the major axis of their scatter.
+        angle = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+        normals[p, 0] = -math.sin(angle)
+        normals[p, 1] = math.cos(angle)
+        tr = sxx + syy
+        det = sxx * syy - sxy * sxy
+        disc = math.sqrt(max(tr * tr / 4 - det, 0.0))
+        minor = tr / 2 - disc
+        major = tr / 2 + disc
+        if found >= 3:
+            if minor <= 0.1 * max(major, 1e-12):
+                line[p] = True
+            else:
+                corner[p] = True
+    return normals, line, corner

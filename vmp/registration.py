@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vmp.config import RegistrationConfig
-from vmp.icp_kernel import CELL, cell_keys, run_icp
+from vmp.icp_kernel import CELL, cell_keys, fit_covariance, point_normals, run_icp
 from vmp.types import FloatArray, transform_points
 
 __all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "last_gate",
@@ -31,7 +31,7 @@ MIN_DISTANCE = 0.08  # the gate shrinks to this
 HUBER = 0.03  # residuals beyond this get Huber-down-weighted
 TOLERANCE = 5e-4  # stop when a step moves less than this
 NEIGHBOURS = 5  # reference points per normal estimate
-MAX_NORMAL_SPREAD = 0.3  # neighbours farther than this do not define a normal
+MAX_NORMAL_SPREAD = 0.3  # neighbours farther than this do not define a normal (<= CELL)
 COVARIANCE_SCALE = 4.0  # ICP covariances are optimistic: inflate
 MIN_SIGMA_XY = 0.005  # covariance floor
 MIN_SIGMA_THETA = 0.002
@@ -77,29 +77,16 @@ class Reference:
         order = np.argsort(keys, kind="stable")
         self.cell_keys = np.ascontiguousarray(keys[order])
         pts = self.points = np.ascontiguousarray(pts[order])
-        self.tree = cKDTree(pts)
-        k = min(NEIGHBOURS, len(pts))
-        dist, idx = self.tree.query(pts, k=k)
-        nb = pts[idx]  # (N, k, 2)
-        ok = dist <= MAX_NORMAL_SPREAD
-        w = ok.astype(np.float64)
-        cnt = w.sum(axis=1)
-        mean = (nb * w[..., None]).sum(axis=1) / cnt[:, None]
-        d = (nb - mean[:, None, :]) * w[..., None]
-        sxx = (d[..., 0] ** 2).sum(axis=1)
-        syy = (d[..., 1] ** 2).sum(axis=1)
-        sxy = (d[..., 0] * d[..., 1]).sum(axis=1)
-        # Direction of the line through the neighbours: the major axis of their scatter.
-        angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-        self.normals = np.stack([-np.sin(angle), np.cos(angle)], axis=-1)
-        # Planarity: how line-like the neighbourhood is; isolated points get no weight.
-        tr = sxx + syy
-        det = sxx * syy - sxy**2
-        disc = np.sqrt(np.maximum(tr**2 / 4 - det, 0.0))
-        minor = tr / 2 - disc
-        major = tr / 2 + disc
-        self.valid = (cnt >= 3) & (minor <= 0.1 * np.maximum(major, 1e-12))
-        self.corner = (cnt >= 3) & ~self.valid
+        self.normals, self.valid, self.corner = point_normals(
+            self.cell_keys, pts, min(NEIGHBOURS, len(pts)), MAX_NORMAL_SPREAD)
+        self._tree: cKDTree | None = None
+
+    @property
+    def tree(self) -> cKDTree:
+        """A k-d tree of the points (built on first use: only :func:`explained` asks)."""
+        if self._tree is None:
+            self._tree = cKDTree(self.points)
+        return self._tree
 
 
 def fits(reg: Registration, config: RegistrationConfig) -> bool:
@@ -139,47 +126,27 @@ def register(reference: Reference, points: FloatArray, initial: FloatArray,
 
 
 def _icp(reference: Reference, pts: FloatArray, initial: FloatArray,
-         corners: bool) -> tuple[Registration, list[FloatArray]]:
+         corners: bool) -> tuple[Registration, int]:
     """One ICP run from ``initial`` (compiled: :mod:`vmp.icp_kernel`); the registration and
-    the directions of translation its fit leaves free (:func:`_free_directions`; none when
-    nothing was matched)."""
+    how many directions of translation its fit leaves free (none when nothing was
+    matched)."""
     x, y, th, H, rms, inliers, wsum, it, converged = run_icp(
         reference.cell_keys, reference.points, reference.normals, reference.valid,
         reference.corner,
         np.ascontiguousarray(pts), float(initial[0]), float(initial[1]), float(initial[2]),
         corners, START_DISTANCE, MIN_DISTANCE, HUBER, CORNER_WEIGHT, TOLERANCE,
         MAX_ITERATIONS)
-    fitted = math.isfinite(rms) and wsum > 0
-    free = _free_directions(H, wsum) if fitted else []
-    reg = Registration(pose=np.array([x, y, th]), rms=rms, inliers=inliers,
-                       covariance=_covariance(H, rms, free) if fitted else _unfitted(),
+    free = 0
+    if math.isfinite(rms) and wsum > 0:
+        cov, free = fit_covariance(H, rms, wsum, MIN_CONSTRAINT, DEGENERATE_SHARE,
+                                   COVARIANCE_SCALE, MIN_SIGMA_XY, MIN_SIGMA_THETA, MAX_SIGMA)
+    else:
+        cov = _unfitted()
+    reg = Registration(pose=np.array([x, y, th]), rms=rms, inliers=inliers, covariance=cov,
                        iterations=it, converged=converged)
     return reg, free
-
-
-def _free_directions(H: FloatArray, wsum: float) -> list[FloatArray]:
-    """Unit directions of translation few matched normals face (a corridor's axis).
-
-    ``H``'s xy block sums ``n n^T`` (weighted) over the matched points.
-    """
-    tv, tvec = np.linalg.eigh(H[:2, :2])
-    return [v for amount, v in zip(tv, tvec.T, strict=True)  # two directions
-            if amount < MIN_CONSTRAINT or amount < DEGENERATE_SHARE * wsum]
 
 
 def _unfitted() -> FloatArray:
     """The covariance of a registration that matched nothing: unconstrained."""
     return np.diag([MAX_SIGMA**2] * 3)
-
-
-def _covariance(H: FloatArray, rms: float, free: list[FloatArray]) -> FloatArray:
-    """``s^2 H^-1``, with the ``free`` directions and unconstrained ones opened up, and a
-    floor."""
-    big = MAX_SIGMA**2
-    sigma2 = max(rms, MIN_SIGMA_XY) ** 2 * COVARIANCE_SCALE
-    vals, vecs = np.linalg.eigh(H)
-    inv = np.where(vals > sigma2 / big, 1.0 / np.maximum(vals, 1e-300), big / sigma2)
-    cov = sigma2 * (vecs * inv) @ vecs.T
-    for v in free:
-        cov[:2, :2] += big * np.outer(v, v)
-    return cov + np.diag([MIN_SIGMA_XY**2, MIN_SIGMA_XY**2, MIN_SIGMA_THETA**2])
