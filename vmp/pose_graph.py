@@ -208,18 +208,16 @@ class PoseGraph:
             return float(w @ chi2), H, g, chi2
 
         w = np.ones(m)
-        x = self._levenberg_marquardt(poses.copy(), lambda p: linearise(p, w), max_iterations,
-                                      normal.diagonal)
-        _, H, _, chi2 = linearise(x, w)
+        x, H, chi2 = self._levenberg_marquardt(poses.copy(), lambda p: linearise(p, w),
+                                               max_iterations, normal.diagonal)
         c2 = ROBUST_C2
         if (robust & (chi2 > c2)).any():
             mu = min(2.0 * float(chi2[robust].max()) / c2, GNC_START)
             while True:
                 mu = max(mu / GNC_STEP, 1.0)
                 w = np.where(robust, (mu * c2 / (chi2 + mu * c2)) ** 2, 1.0)
-                x = self._levenberg_marquardt(x, lambda p, w=w: linearise(p, w), GNC_ITERATIONS,
-                                              normal.diagonal)
-                _, H, _, chi2 = linearise(x, w)
+                x, H, chi2 = self._levenberg_marquardt(x, lambda p, w=w: linearise(p, w),
+                                                       GNC_ITERATIONS, normal.diagonal)
                 if mu == 1.0:
                     break
         self.weights = w
@@ -232,9 +230,11 @@ class PoseGraph:
 
     @staticmethod
     def _levenberg_marquardt(x: FloatArray, linearise, max_iterations: int,
-                             diagonal_slots: np.ndarray) -> FloatArray:
+                             diagonal_slots: np.ndarray
+                             ) -> tuple[FloatArray, csc_matrix, FloatArray]:
         """Minimise the cost ``linearise`` gives, from ``x`` (node 0 fixed); the diagonal of
-        its ``H`` sits at ``diagonal_slots`` of the matrix's data."""
+        its ``H`` sits at ``diagonal_slots`` of the matrix's data. Returns the poses, and
+        ``H`` and each edge's chi^2 there."""
 
         def step(p: FloatArray, dx: FloatArray) -> FloatArray:
             q = p.copy()
@@ -242,7 +242,7 @@ class PoseGraph:
             q[1:, 2] = wrap_angle(q[1:, 2])
             return q
 
-        cost, H, g, _ = linearise(x)
+        cost, H, g, chi2 = linearise(x)
         slots = diagonal_slots
         lam = 1e-6
         for _ in range(max_iterations):
@@ -254,12 +254,12 @@ class PoseGraph:
                 lam *= 10.0
                 continue
             trial = step(x, dx)
-            cost_t, H_t, g_t, _ = linearise(trial)
+            cost_t, H_t, g_t, chi2_t = linearise(trial)
             if cost_t <= cost:
                 move = float(abs(dx).max())
                 done = (cost - cost_t <= LM_TOLERANCE * max(cost, 1.0) or move < 1e-10
                         or (move < STEP_TOLERANCE and lam <= UNDAMPED))
-                x, H, g, cost = trial, H_t, g_t, cost_t
+                x, H, g, cost, chi2 = trial, H_t, g_t, cost_t, chi2_t
                 lam = max(lam / 10.0, 1e-12)
                 if done:
                     break
@@ -267,7 +267,7 @@ class PoseGraph:
                 lam *= 10.0
                 if lam > 1e8:
                     break
-        return x
+        return x, H, chi2
 
     def chi2(self, poses: FloatArray) -> float:
         """Sum of the squared, information-weighted edge errors."""
