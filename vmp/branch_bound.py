@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.ndimage import distance_transform_edt
 
 from vmp.types import FloatArray
@@ -150,19 +151,22 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
     res, depth = grid.resolution, grid.depth
     thetas = center[2] + _angles(pts, res, window_theta)
     steps = min(math.ceil(window_xy / res - 1e-9), grid.max_steps)
-    # Each rotation's points, placed at the window's centre: cell indices (R, M).
-    cx = np.empty((len(thetas), len(pts)), dtype=np.int64)
-    cy = np.empty_like(cx)
-    for k, th in enumerate(thetas):  # a few hundred rotations, each vectorised over points
-        cx[k], cy[k] = grid.clamp(*grid.cells(pts, np.array([center[0], center[1], th])))
+    # Each rotation's points, placed at the window's centre: cell indices (R, M), all
+    # rotations at once (the cosines by ``math``, as :meth:`SearchGrid.cells` takes them).
+    cos = np.array([math.cos(th) for th in thetas])[:, None]
+    sin = np.array([math.sin(th) for th in thetas])[:, None]
+    cx, cy = grid.clamp(
+        np.rint((center[0] + cos * pts[:, 0] - sin * pts[:, 1] - grid.origin[0])
+                / res).astype(np.int64),
+        np.rint((center[1] + sin * pts[:, 0] + cos * pts[:, 1] - grid.origin[1])
+                / res).astype(np.int64))
     scale = 255.0 * len(pts)
     stride = grid.shape[1]
-    flat = cx * stride + cy  # (R, M) flat cell indices
+    flat = np.ascontiguousarray(cx * stride + cy)  # (R, M) flat cell indices
     levels = [g.ravel() for g in grid.levels]
 
     def scores(level: int, rot: np.ndarray, ox: np.ndarray, oy: np.ndarray) -> np.ndarray:
-        vals = levels[level][flat[rot] + (ox * stride + oy)[:, None]]
-        out = vals.sum(axis=1, dtype=np.int64) / scale
+        out = block_sums(levels[level], flat, rot, ox * stride + oy) / scale
         if level == 0 and exclude is not None:  # bounds above stay bounds
             pose, dxy, dth = exclude
             near = (np.hypot(center[0] + ox * res - pose[0], center[1] + oy * res - pose[1])
@@ -204,6 +208,25 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
     pose = np.array([center[0] + x * res, center[1] + y * res,
                      (thetas[r] + math.pi) % (2 * math.pi) - math.pi])
     return Match(pose, best[0], evaluated)
+
+
+@njit(cache=True, nogil=True)
+def block_sums(level, flat, rot, offset):  # pragma: no cover - compiled
+    """For each candidate ``k``: the sum of ``level`` (a flattened grid of bytes) over the
+    cells ``flat[rot[k]] + offset[k]`` (rotation ``rot[k]``'s points moved by ``offset[k]``
+    cells). In NumPy the gather made a (candidates, points) array of a few hundred thousand
+    entries per level before summing it (docs/benchmarks.md, 2026-12-03)."""
+    n = rot.shape[0]
+    m = flat.shape[1]
+    out = np.empty(n, dtype=np.int64)
+    for k in range(n):
+        row = flat[rot[k]]
+        off = offset[k]
+        total = 0
+        for i in range(m):
+            total += level[row[i] + off]
+        out[k] = total
+    return out
 
 
 def _dive(scores, level: int, rot: np.ndarray, ox: np.ndarray, oy: np.ndarray,
