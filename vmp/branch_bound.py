@@ -20,9 +20,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 from scipy.ndimage import distance_transform_edt
 
+from vmp.jit import kernel
 from vmp.types import FloatArray
 
 __all__ = ["Match", "SearchGrid", "likelihood_field", "search", "search_points"]
@@ -210,7 +210,7 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
     return Match(pose, best[0], evaluated)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def block_sums(level, flat, rot, offset):  # pragma: no cover - compiled
     """For each candidate ``k``: the sum of ``level`` (a flattened grid of bytes) over the
     cells ``flat[rot[k]] + offset[k]`` (rotation ``rot[k]``'s points moved by ``offset[k]``

@@ -12,12 +12,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from vmp.jit import kernel
 
 __all__ = ["edge_terms"]
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def edge_terms(p, i, j, z, info, w):  # pragma: no cover - compiled
     """For poses ``p`` (n, 3) and edges ``i -> j`` measuring ``z`` (m, 3) with information
     ``info`` (m, 3, 3) and weights ``w`` (m,): each edge's unweighted chi^2 (m,), the blocks

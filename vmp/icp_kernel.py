@@ -14,7 +14,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from vmp.jit import kernel
 
 __all__ = ["CELL", "cell_keys", "fit_covariance", "point_normals", "run_icp"]
 
@@ -30,7 +31,7 @@ def cell_keys(points: np.ndarray) -> np.ndarray:
     return cells[:, 0] * _STRIDE + cells[:, 1]
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _nearest(cells_keys, ref, qx, qy, gate):  # pragma: no cover - compiled
     """Row of the reference point nearest to (qx, qy) closer than ``gate``, or -1."""
     reach = math.ceil(gate / CELL)
@@ -51,7 +52,7 @@ def _nearest(cells_keys, ref, qx, qy, gate):  # pragma: no cover - compiled
     return best
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def run_icp(keys, ref, normals, line, corner, pts, x, y, th, corners, start_gate, min_gate,
             huber, corner_weight, tolerance, max_iterations):  # pragma: no cover - compiled
     """ICP of ``pts`` from (x, y, th): returns x, y, th, the last normal matrix H (3 x 3), the
@@ -143,7 +144,7 @@ def run_icp(keys, ref, normals, line, corner, pts, x, y, th, corners, start_gate
     return x, y, th, H, rms, matched_share, wsum, it, converged
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _solve_symmetric(a, b, c, d, e, f, g0, g1, g2):  # pragma: no cover - compiled
     """``-(H + 1e-9 I)^-1 g`` for the symmetric ``H = [[a b c] [b d e] [c e f]]`` by its
     cofactors; ``ok`` is False when it is singular."""
@@ -163,7 +164,7 @@ def _solve_symmetric(a, b, c, d, e, f, g0, g1, g2):  # pragma: no cover - compil
             -(cc * g0 + ce * g1 + cf * g2) / det)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def fit_covariance(H, rms, wsum, min_constraint, degenerate_share, scale, min_sigma_xy,
                    min_sigma_theta, max_sigma):  # pragma: no cover - compiled
     """The covariance of a fit with normal matrix ``H``, and how many directions of
@@ -200,7 +201,7 @@ def fit_covariance(H, rms, wsum, min_constraint, degenerate_share, scale, min_si
     return cov, free
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def point_normals(keys, points, k, max_spread):  # pragma: no cover - compiled
     """Per point of a reference sorted by :func:`cell_keys`: the normal of the line through
     its ``k`` nearest points (itself included) that lie within ``max_spread`` (``max_spread``

@@ -12,12 +12,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from vmp.jit import kernel
 
 __all__ = ["add_spans"]
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def add_spans(acc, polygons, origin_x, origin_y, resolution):  # pragma: no cover - compiled
     """Mark the row spans inside each polygon ``(P, V, 2)`` (implicitly closed rings, even-odd
     rule, cell centres at integer + 0.5) in ``acc`` ``(H, W + 1)``: +1 at a span's first cell,
