@@ -83,38 +83,3 @@ def test_without_milestones_only_odometry_and_scan_matching_move_the_robot():
     r = MappingRun(open_source("lab", scans=150), config).run()
     assert len(r.pipeline.milestones) == 1 and r.corrections == []
     np.testing.assert_allclose(r.trajectory, r.online, atol=1e-9)  # nothing re-placed scans
-
-
-def test_a_rejected_signature_match_does_not_hide_the_searchs_find():
-    """The loop search's fit of a milestone is judged even where the same milestone's
-    signature match, registered from a far-off prediction, was rejected (ACES's halves
-    merged left a loop between the sessions open that way)."""
-    from vmp.loops import Find
-    from vmp.matcher import Kind, Match, Reason, Seed
-    from vmp.registration import register
-    from vmp.run import MappingRun
-
-    frames = list(open_source("lab", scans=41))
-    p = MappingRun(FrameList(frames[:40], "lab")).run().pipeline
-    frame = frames[-1]
-    p.predict(frame)
-    p.matched_at = None
-    mid = int(p.milestones.ids[0])
-    poor = register(p.matcher.reference(mid), frame.points(), np.zeros(3))
-    judged, verdict = [], object()
-
-    def signature_match_rejected(*_args, **_kwargs):
-        return [Match(mid, Kind.SIGNATURE, poor, np.zeros(3), np.eye(3), 0.0, 0.5, 0.1,
-                      Reason.POOR_FIT, Seed.PREDICTION)]
-
-    def judge(milestone, _registration, _ratio, _score, _x, _P, _doubt, seed):
-        judged.append((milestone, seed))
-        return verdict
-
-    p.matcher.match = signature_match_rejected
-    p.matcher.judge = judge
-    p.loops.due = lambda _anchor: True
-    p.loops.search = lambda *_args: [Find(mid, poor, 0.9, 0.0, 0.1)]
-    matches = p.match(frame)
-    assert judged == [(mid, Seed.SEARCH)]
-    assert verdict in matches

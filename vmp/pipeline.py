@@ -115,12 +115,7 @@ class Pipeline:
         else:
             self.stats["scans not matched (standing still)"] += 1
         if self.loops.due(self.back.anchor):
-            # A find is judged unless the milestone's signature match was accepted already: a
-            # signature match registered from a far-off prediction and rejected as a poor fit
-            # had hidden the search's fit of the same milestone (ACES's halves merged: the
-            # loop between the sessions at scans 4885-4895 left open, 0.0476 m against 0.0355
-            # mapped in one go).
-            seen = {m.milestone for m in matches if m.accepted}
+            seen = {m.milestone for m in matches}
             finds = self.loops.search(frame, x, self.back.anchor, self.back.linked(), scan,
                                       self._drift(x, P, doubt))
             for find in finds:
