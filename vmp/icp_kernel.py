@@ -19,7 +19,7 @@ from vmp.jit import kernel
 
 __all__ = ["CELL", "cell_keys", "fit_covariance", "point_normals", "run_icp"]
 
-CELL = 0.5  # cell side (m): the widest correspondence gate, so a gate looks at 3 x 3 cells
+CELL = 0.5  # cell side (m): ICP's widest correspondence gate, so a gate looks at 3 x 3 cells
 _OFFSET = 1 << 30  # cell coordinates are clipped to +-2^30 cells (5e8 m) and shifted positive
 _STRIDE = 1 << 32
 
@@ -204,11 +204,11 @@ def fit_covariance(H, rms, wsum, min_constraint, degenerate_share, scale, min_si
 @kernel
 def point_normals(keys, points, k, max_spread):  # pragma: no cover - compiled
     """Per point of a reference sorted by :func:`cell_keys`: the normal of the line through
-    its ``k`` nearest points (itself included) that lie within ``max_spread`` (``max_spread``
-    at most :data:`CELL`), whether they lie on a line (``line``: at least three, the minor
-    axis of their scatter under a tenth of the major) and whether they do not (``corner``:
-    at least three, no line). (SciPy's k-d tree built for this alone cost a third of a
-    reference's building, which scan odometry and every new milestone do.)"""
+    its ``k`` nearest points (itself included) that lie within ``max_spread``, whether they
+    lie on a line (``line``: at least three, the minor axis of their scatter under a tenth of
+    the major) and whether they do not (``corner``: at least three, no line). (SciPy's k-d
+    tree built for this alone cost a third of a reference's building, which scan odometry
+    and every new milestone do.)"""
     n = points.shape[0]
     normals = np.empty((n, 2))
     line = np.zeros(n, dtype=np.bool_)
@@ -216,15 +216,16 @@ def point_normals(keys, points, k, max_spread):  # pragma: no cover - compiled
     best_d = np.empty(k)
     best_i = np.empty(k, dtype=np.int64)
     limit = max_spread * max_spread
+    reach = math.ceil(max_spread / CELL)  # cells either way that can hold a neighbour
     for p in range(n):
         px = points[p, 0]
         py = points[p, 1]
         found = 0
         cx = int(min(max(math.floor(px / CELL), -_OFFSET), _OFFSET - 1)) + _OFFSET
         cy = int(min(max(math.floor(py / CELL), -_OFFSET), _OFFSET - 1)) + _OFFSET
-        for col in range(cx - 1, cx + 2):
-            lo = np.searchsorted(keys, col * _STRIDE + cy - 1)
-            hi = np.searchsorted(keys, col * _STRIDE + cy + 1, side="right")
+        for col in range(cx - reach, cx + reach + 1):
+            lo = np.searchsorted(keys, col * _STRIDE + cy - reach)
+            hi = np.searchsorted(keys, col * _STRIDE + cy + reach, side="right")
             for q in range(lo, hi):
                 dx = points[q, 0] - px
                 dy = points[q, 1] - py

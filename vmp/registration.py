@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vmp.config import RegistrationConfig
-from vmp.icp_kernel import CELL, cell_keys, fit_covariance, point_normals, run_icp
+from vmp.icp_kernel import cell_keys, fit_covariance, point_normals, run_icp
 from vmp.types import FloatArray, transform_points
 
 __all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "last_gate",
@@ -26,12 +26,12 @@ __all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "last
 MIN_POINTS = 20  # a scan with fewer returns is neither registered nor matched
 # The ICP's own settings (lengths in metres, angles in radians).
 MAX_ITERATIONS = 30
-START_DISTANCE = CELL  # correspondence gate of the first iteration (the kernel's cell side)
+START_DISTANCE = 0.5  # correspondence gate of the first iteration (the kernel's CELL)
 MIN_DISTANCE = 0.08  # the gate shrinks to this
 HUBER = 0.03  # residuals beyond this get Huber-down-weighted
 TOLERANCE = 5e-4  # stop when a step moves less than this
 NEIGHBOURS = 5  # reference points per normal estimate
-MAX_NORMAL_SPREAD = 0.3  # neighbours farther than this do not define a normal (<= CELL)
+MAX_NORMAL_SPREAD = 0.3  # neighbours farther than this do not define a normal
 COVARIANCE_SCALE = 4.0  # ICP covariances are optimistic: inflate
 MIN_SIGMA_XY = 0.005  # covariance floor
 MIN_SIGMA_THETA = 0.002
