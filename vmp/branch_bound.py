@@ -101,11 +101,19 @@ class SearchGrid:
 
     def cells(self, points: FloatArray, pose: FloatArray) -> tuple[np.ndarray, np.ndarray]:
         """Cell indices of ``points`` (their frame) placed at ``pose``."""
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        x = pose[0] + c * points[:, 0] - s * points[:, 1]
-        y = pose[1] + s * points[:, 0] + c * points[:, 1]
-        return (np.rint((x - self.origin[0]) / self.resolution).astype(np.int64),
-                np.rint((y - self.origin[1]) / self.resolution).astype(np.int64))
+        cx, cy = self.turned_cells(points, pose[0], pose[1], (pose[2],))
+        return cx[0], cy[0]
+
+    def turned_cells(self, points: FloatArray, x: float, y: float, thetas
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """Cell indices ``(R, M)`` of ``points`` ``(M, 2)`` placed at (x, y) turned by each of
+        the ``R`` angles ``thetas`` (their cosines by ``math``, one at a time)."""
+        c = np.array([math.cos(t) for t in thetas])[:, None]
+        s = np.array([math.sin(t) for t in thetas])[:, None]
+        px = x + c * points[:, 0] - s * points[:, 1]
+        py = y + s * points[:, 0] + c * points[:, 1]
+        return (np.rint((px - self.origin[0]) / self.resolution).astype(np.int64),
+                np.rint((py - self.origin[1]) / self.resolution).astype(np.int64))
 
     def clamp(self, cx: np.ndarray, cy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cells moved into the padding where they lie beyond it: under any offset of a
@@ -151,15 +159,8 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
     res, depth = grid.resolution, grid.depth
     thetas = center[2] + _angles(pts, res, window_theta)
     steps = min(math.ceil(window_xy / res - 1e-9), grid.max_steps)
-    # Each rotation's points, placed at the window's centre: cell indices (R, M), all
-    # rotations at once (the cosines by ``math``, as :meth:`SearchGrid.cells` takes them).
-    cos = np.array([math.cos(th) for th in thetas])[:, None]
-    sin = np.array([math.sin(th) for th in thetas])[:, None]
-    cx, cy = grid.clamp(
-        np.rint((center[0] + cos * pts[:, 0] - sin * pts[:, 1] - grid.origin[0])
-                / res).astype(np.int64),
-        np.rint((center[1] + sin * pts[:, 0] + cos * pts[:, 1] - grid.origin[1])
-                / res).astype(np.int64))
+    # Each rotation's points, placed at the window's centre: cell indices (R, M).
+    cx, cy = grid.clamp(*grid.turned_cells(pts, center[0], center[1], thetas))
     scale = 255.0 * len(pts)
     stride = grid.shape[1]
     flat = np.ascontiguousarray(cx * stride + cy)  # (R, M) flat cell indices

@@ -30,6 +30,7 @@ def edge_terms(p, i, j, z, info, w):  # pragma: no cover - compiled
     grads = np.empty((m, 6))
     D = np.zeros((3, 6))
     e = np.empty(3)
+    oe = np.empty(3)  # Omega e
     for k in range(m):
         a = i[k]
         b = j[k]
@@ -56,8 +57,8 @@ def edge_terms(p, i, j, z, info, w):  # pragma: no cover - compiled
         om = info[k]
         chi = 0.0
         for r in range(3):
-            oe = om[r, 0] * e[0] + om[r, 1] * e[1] + om[r, 2] * e[2]
-            chi += e[r] * oe
+            oe[r] = om[r, 0] * e[0] + om[r, 1] * e[1] + om[r, 2] * e[2]
+            chi += e[r] * oe[r]
         chi2[k] = chi
         wk = w[k]
         # W Omega D (3 x 6), then D' (W Omega D) and D' (W Omega e).
@@ -70,7 +71,6 @@ def edge_terms(p, i, j, z, info, w):  # pragma: no cover - compiled
         for row in range(6):
             g = 0.0
             for r in range(3):
-                oe = om[r, 0] * e[0] + om[r, 1] * e[1] + om[r, 2] * e[2]
-                g += D[r, row] * wk * oe
+                g += D[r, row] * wk * oe[r]
             grads[k, row] = g
     return chi2, blocks, grads

@@ -32,16 +32,28 @@ def cell_keys(points: np.ndarray) -> np.ndarray:
 
 
 @kernel
+def _cell(v):  # pragma: no cover - compiled
+    """The (shifted) cell coordinate of one coordinate ``v``, as :func:`cell_keys` has it."""
+    return int(min(max(math.floor(v / CELL), -_OFFSET), _OFFSET - 1)) + _OFFSET
+
+
+@kernel
+def _column_rows(keys, col, cy, reach):  # pragma: no cover - compiled
+    """The sorted rows ``lo:hi`` in column ``col`` of cells, rows ``cy - reach`` to
+    ``cy + reach`` (one range: a column's cells are consecutive in the sort)."""
+    return (np.searchsorted(keys, col * _STRIDE + cy - reach),
+            np.searchsorted(keys, col * _STRIDE + cy + reach, side="right"))
+
+
+@kernel
 def _nearest(cells_keys, ref, qx, qy, gate):  # pragma: no cover - compiled
     """Row of the reference point nearest to (qx, qy) closer than ``gate``, or -1."""
-    reach = math.ceil(gate / CELL)
-    cx = int(min(max(math.floor(qx / CELL), -_OFFSET), _OFFSET - 1)) + _OFFSET
-    cy = int(min(max(math.floor(qy / CELL), -_OFFSET), _OFFSET - 1)) + _OFFSET
     best = -1
     best_d2 = gate * gate
+    reach = math.ceil(gate / CELL)
+    cx, cy = _cell(qx), _cell(qy)
     for col in range(cx - reach, cx + reach + 1):
-        lo = np.searchsorted(cells_keys, col * _STRIDE + cy - reach)
-        hi = np.searchsorted(cells_keys, col * _STRIDE + cy + reach, side="right")
+        lo, hi = _column_rows(cells_keys, col, cy, reach)
         for k in range(lo, hi):
             dx = ref[k, 0] - qx
             dy = ref[k, 1] - qy
@@ -221,11 +233,9 @@ def point_normals(keys, points, k, max_spread):  # pragma: no cover - compiled
         px = points[p, 0]
         py = points[p, 1]
         found = 0
-        cx = int(min(max(math.floor(px / CELL), -_OFFSET), _OFFSET - 1)) + _OFFSET
-        cy = int(min(max(math.floor(py / CELL), -_OFFSET), _OFFSET - 1)) + _OFFSET
+        cx, cy = _cell(px), _cell(py)
         for col in range(cx - reach, cx + reach + 1):
-            lo = np.searchsorted(keys, col * _STRIDE + cy - reach)
-            hi = np.searchsorted(keys, col * _STRIDE + cy + reach, side="right")
+            lo, hi = _column_rows(keys, col, cy, reach)
             for q in range(lo, hi):
                 dx = points[q, 0] - px
                 dy = points[q, 1] - py
