@@ -24,6 +24,7 @@ import pywt
 import scipy.fft
 from numpy.typing import NDArray
 
+from milestones.jit import kernel
 from milestones.overlap import overlap_sums, shifts_for
 from milestones.signature import FloatArray
 
@@ -42,16 +43,31 @@ class ShiftMatch:
 
 
 def _best(curve: FloatArray, shifts: NDArray) -> ShiftMatch:
-    i = np.argmin(curve, axis=1)
-    rows = np.arange(len(curve))
-    score = curve[rows, i]
-    # Parabola through the minimum and its neighbours (not at the ends of the search).
-    inner = (i > 0) & (i < curve.shape[1] - 1)
-    il, ir = np.clip(i - 1, 0, None), np.clip(i + 1, None, curve.shape[1] - 1)
-    a, b, c = curve[rows, il], score, curve[rows, ir]
-    den = a - 2.0 * b + c
-    delta = np.where(inner & (den > 1e-15), 0.5 * (a - c) / np.where(den > 1e-15, den, 1.0), 0.0)
-    return ShiftMatch(shifts[i], shifts[i] + np.clip(delta, -0.5, 0.5), score, shifts, curve)
+    i, score, delta = _minima(np.ascontiguousarray(curve, dtype=np.float64))
+    return ShiftMatch(shifts[i], shifts[i] + delta, score, shifts, curve)
+
+
+@kernel
+def _minima(curve: FloatArray) -> tuple[NDArray, FloatArray, FloatArray]:
+    """Per row: the index of the least score, the score, and the sub-sample offset of the
+    parabola through it and its neighbours (0 at the ends of the row), within half a sample."""
+    M, K = curve.shape
+    index = np.empty(M, dtype=np.int64)
+    score = np.empty(M)
+    delta = np.zeros(M)
+    for m in range(M):
+        i = 0
+        for k in range(1, K):
+            if curve[m, k] < curve[m, i]:  # the first least, as argmin
+                i = k
+        index[m] = i
+        score[m] = b = curve[m, i]
+        if 0 < i < K - 1:
+            a, c = curve[m, i - 1], curve[m, i + 1]
+            den = a - 2.0 * b + c
+            if den > 1e-15:
+                delta[m] = min(max(0.5 * (a - c) / den, -0.5), 0.5)
+    return index, score, delta
 
 
 class Method(ABC):

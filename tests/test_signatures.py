@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from drivers.scenario import load_scenario
 from drivers.simulator import Simulator
-from milestones.methods import CCA, DCT, ED, HWT, make_method
+from milestones.methods import CCA, DCT, ED, HWT, _best, make_method
 from milestones.overlap import overlap_sums
 from milestones.signature import make_signature, sample_step
 
@@ -167,14 +167,49 @@ def test_circular_shift_is_found_with_full_overlap(k):
 
 
 def test_overlap_sums_equal_the_literal_loops():
-    q, s = smooth_profile(seed=3), smooth_profile(seed=4)
+    q = smooth_profile(seed=3)
+    s = np.stack([smooth_profile(seed=4), smooth_profile(seed=5), np.full(180, 2.0)])
     shifts = np.arange(-30, 31)
-    sums = overlap_sums(q, s[None], shifts)
-    for j, k in enumerate(shifts):
-        i = np.arange(max(0, -k), min(180, 180 - k))
-        a, b = q[i], s[i + k]
-        assert math.isclose(sums.rms()[0, j], math.sqrt(np.mean((a - b) ** 2)), rel_tol=1e-9)
-        assert math.isclose(sums.rho()[0, j], np.corrcoef(a, b)[0, 1], rel_tol=1e-9)
+    sums = overlap_sums(q, s, shifts)
+    rms, rho = sums.rms(), sums.rho()
+    for m in range(2):
+        for j, k in enumerate(shifts):
+            i = np.arange(max(0, -k), min(180, 180 - k))
+            a, b = q[i], s[m, i + k]
+            assert math.isclose(rms[m, j], math.sqrt(np.mean((a - b) ** 2)), rel_tol=1e-9)
+            assert math.isclose(rho[m, j], np.corrcoef(a, b)[0, 1], rel_tol=1e-9)
+    assert (rho[2] == 0.0).all()  # a flat signature correlates with nothing
+
+
+def _best_in_numpy(curve):
+    """The heading search's pick as NumPy wrote it before it was compiled."""
+    i = np.argmin(curve, axis=1)
+    rows = np.arange(len(curve))
+    inner = (i > 0) & (i < curve.shape[1] - 1)
+    a = curve[rows, np.clip(i - 1, 0, None)]
+    b = curve[rows, i]
+    c = curve[rows, np.clip(i + 1, None, curve.shape[1] - 1)]
+    den = a - 2.0 * b + c
+    delta = np.where(inner & (den > 1e-15), 0.5 * (a - c) / np.where(den > 1e-15, den, 1.0), 0.0)
+    return i, b, np.clip(delta, -0.5, 0.5)
+
+
+def test_the_best_shift_and_its_refinement_are_numpys():
+    rng = np.random.default_rng(1)
+    curve = rng.random((40, 25))
+    curve[0, :] = 0.5  # a tie everywhere: the first shift
+    curve[1, 0] = -1.0  # least at the first shift: no refinement
+    curve[2, -1] = -1.0  # and at the last
+    curve[3:5] += 1.0  # above the minima set next
+    curve[3, 10:13] = [0.2, 0.1, 0.2]  # a symmetric minimum: refined by nothing
+    curve[4, 4:7] = [0.3, -1.0, -0.9]  # leaning right
+    shifts = np.arange(-12, 13)
+    m = _best(curve, shifts)
+    i, score, delta = _best_in_numpy(curve)
+    assert np.array_equal(m.shift, shifts[i]) and np.array_equal(m.score, score)
+    assert np.allclose(m.refined, shifts[i] + delta, rtol=0, atol=1e-15)
+    assert m.shift[0] == -12 and m.refined[1] == -12 and m.refined[2] == 12
+    assert m.refined[3] == -1 and 0.4 < m.refined[4] + 7 < 0.5  # 0.6 / 1.4 of a sample
 
 
 def test_all_methods_find_the_heading_of_a_turned_real_scan():
