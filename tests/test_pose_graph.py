@@ -38,7 +38,7 @@ def test_edge_kinds(kind):
 
 
 def test_marginals_equal_the_dense_inverse_blocks():
-    from scipy.sparse import csr_matrix
+    from scipy.sparse import csr_matrix, triu
     from scipy.sparse import random as sparse_random
 
     from vmp.pose_graph import Marginals
@@ -49,7 +49,7 @@ def test_marginals_equal_the_dense_inverse_blocks():
     J = sparse_random(200, m, density=0.05, random_state=2) + csr_matrix(np.eye(200, m))
     H = (J.T @ J).tocsc()
     cov = np.linalg.inv(H.toarray() + np.eye(m) * 1e-9)
-    got = Marginals(H, n)
+    got = Marginals(triu(H, format="csc"), n)  # the upper triangle is what it reads
     idx = np.arange(n - 1)[:, None] * 3 + np.arange(3)
     want = cov[idx[:, :, None], idx[:, None, :]]
     for node in (5, 1, 39, 5):  # solved when asked, once
@@ -107,3 +107,22 @@ def test_true_loops_close_from_far_drift():
     assert np.hypot(*(drifted[39, :2] - drifted[0, :2])) > 5.0
     e = relative(fixed[39], fixed[0]) - relative(true[39], true[0])
     assert np.hypot(e[0], e[1]) < 0.05 and g.weights[-1] > 0.5
+
+
+def test_the_factorisation_solves_each_pattern_it_is_given():
+    from scipy.sparse import csc_matrix, triu
+
+    from vmp.pose_graph import _Factor
+
+    rng = np.random.default_rng(4)
+    factor = _Factor()
+    for density in (0.3, 0.3, 0.6):  # the second reuses the first's order, the third cannot
+        B = rng.random((12, 12)) * (rng.random((12, 12)) < density)
+        A = B @ B.T + np.eye(12)
+        b = rng.random(12)
+        x = factor.solve(triu(csc_matrix(A), format="csc"), b)
+        np.testing.assert_allclose(A @ x, b, atol=1e-10)
+    singular = np.ones((3, 3))
+    assert factor.solve(triu(csc_matrix(singular), format="csc"), np.ones(3)) is None
+    factor.solve(triu(csc_matrix(np.eye(3) + 0.5), format="csc"), np.ones(3))
+    assert factor.solve(triu(csc_matrix(singular), format="csc"), np.ones(3)) is None  # updated

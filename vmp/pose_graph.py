@@ -20,8 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import csc_matrix, identity
-from scipy.sparse.linalg import splu
+import qdldl
+from scipy.sparse import csc_matrix
 
 from vmp.graph_kernel import edge_terms
 from vmp.types import FloatArray, relative, wrap_angle
@@ -48,12 +48,6 @@ STEP_TOLERANCE = 1e-5
 # converge linearly, the steps shrinking by a third each.)
 GNC_STEP_TOLERANCE = 1e-3
 UNDAMPED = 1e-5
-# How SuperLU factorises the normal equations: a fill-reducing order of H's own pattern, and no
-# row pivoting, which a symmetric positive definite matrix does not need (a singular one, an
-# unconstrained node, still fails: a zero pivot). On fr079's last graph (1,287 unknowns) this
-# cuts the entries of L and U by a quarter (43,259 -> 31,516) and takes 1.05 ms instead of
-# 1.47; fr079 factorises some 10,000 times (docs/benchmarks.md).
-SPD = {"permc_spec": "MMD_AT_PLUS_A", "diag_pivot_thresh": 0.0}
 
 
 @dataclass(frozen=True)
@@ -67,25 +61,83 @@ class Edge:
     kind: str  # "path" or "loop"
 
 
-class Marginals:
-    """The 3x3 marginal covariance of every node, from the Gauss-Newton information ``H``
-    over the unknowns of nodes 1..n-1 (node 0 is fixed: zeros), solved for a node when it is
-    first asked for.
+class _Factor:
+    """``LDL^T`` factorisations of symmetric positive definite matrices of one sparsity
+    pattern, given as their upper triangles (CSC): QDLDL, after a fill-reducing order (AMD)
+    found at the first and kept for the rest.
 
-    The information is factorised once (sparse LU: a chain plus loops); a node's block is one
-    solve for its three columns. A mapper asks for a few nodes between two adjustments (the
-    anchor, the candidates of a loop), so solving them all was most of an adjustment's time:
-    a quarter of a second per adjustment on fr079's 500 milestones.
+    The normal equations of one adjustment keep their pattern through every iteration and
+    every robust round, so only the first factorisation orders. SuperLU, which scipy offers,
+    orders and factorises the whole (unsymmetric) matrix each time: on fr079's last graph
+    (1,287 unknowns) 2.27 ms a factorisation and solve, against 0.25 ms here (in turn on this
+    machine); fr079 factorises some 8,000 times.
     """
 
-    TRANSIENT = ("_lu",)  # rebuilt from the stored information when needed (vmp.state)
+    def __init__(self) -> None:
+        self._solver: qdldl.Solver | None = None
+        self._pattern: tuple[np.ndarray, np.ndarray] | None = None
 
-    def __init__(self, H: csc_matrix, n: int) -> None:
-        H = (H + identity(H.shape[0], format="csc") * 1e-9).tocsc()
+    def solve(self, upper: csc_matrix, b: FloatArray) -> FloatArray | None:
+        """``A^-1 b`` for the matrix ``A`` whose upper triangle is ``upper``; None when the
+        factorisation breaks down (a pivot that is not positive: ``A`` is not positive
+        definite to working precision)."""
+        try:
+            if self._solver is not None and self._same_pattern(upper):
+                self._solver.update(upper, upper=True)
+            else:  # qdldl's update would read the values in the old pattern's places
+                self._solver = qdldl.Solver(upper, upper=True)
+                self._pattern = (upper.indptr.copy(), upper.indices.copy())
+        except RuntimeError:  # qdldl's constructor on a zero pivot
+            self._solver = None
+            return None
+        if not (self._solver.factors()[1] > 0).all():  # update() does not say
+            return None
+        return self._solver.solve(b)
+
+    def _same_pattern(self, upper: csc_matrix) -> bool:
+        indptr, indices = self._pattern
+        return np.array_equal(upper.indptr, indptr) and np.array_equal(upper.indices, indices)
+
+
+class Marginals:
+    """The 3x3 marginal covariance of every node, from the Gauss-Newton information ``H``
+    (its upper triangle) over the unknowns of nodes 1..n-1 (node 0 is fixed: zeros), solved
+    for a node when it is first asked for.
+
+    The information is factorised once (a chain plus loops); a node's block is three solves.
+    A mapper asks for a few nodes between two adjustments (the anchor, the candidates of a
+    loop), so solving them all was most of an adjustment's time: a quarter of a second per
+    adjustment on fr079's 500 milestones.
+    """
+
+    TRANSIENT = ("_factor",)  # rebuilt from the stored information when needed (vmp.state)
+
+    def __init__(self, H_upper: csc_matrix, n: int, factor: _Factor | None = None) -> None:
+        """``factor``: one that factorised matrices of this pattern before (its order is
+        reused)."""
+        H = csc_matrix(H_upper, copy=True)
+        H.sort_indices()
+        diagonal = H.indptr[1:] - 1  # the last entry of each column of an upper triangle
+        if not np.array_equal(H.indices[diagonal], np.arange(H.shape[0])):
+            raise ValueError("H_upper must store its whole diagonal")
+        H.data[diagonal] += 1e-9  # in place: a sparse sum would drop the stored zeros
         self.data, self.indices, self.indptr = H.data, H.indices, H.indptr
         self.n = n
         self._solved: dict[int, FloatArray] = {}
-        self._lu = splu(H, **SPD)  # RuntimeError when singular (an unconstrained node)
+        self._factor: _Factor | None = None
+        self._factorise(factor)
+
+    def _factorise(self, factor: _Factor | None = None) -> _Factor:
+        """The information's factorisation; RuntimeError when it is singular (a node that
+        nothing constrains)."""
+        if self._factor is None:
+            size = len(self.indptr) - 1
+            factor = factor or _Factor()
+            H = csc_matrix((self.data, self.indices, self.indptr), shape=(size, size))
+            if factor.solve(H, np.zeros(size)) is None:
+                raise RuntimeError("the graph's information is singular")
+            self._factor = factor
+        return self._factor
 
     def __len__(self) -> int:
         return self.n
@@ -98,14 +150,14 @@ class Marginals:
             return np.zeros((3, 3))
         block = self._solved.get(node)
         if block is None:
-            if self._lu is None:
-                size = len(self.indptr) - 1
-                self._lu = splu(csc_matrix((self.data, self.indices, self.indptr),
-                                           shape=(size, size)), **SPD)
+            solver = self._factorise()._solver
             cols = 3 * (node - 1) + np.arange(3)
-            rhs = np.zeros((len(self.indptr) - 1, 3))
-            rhs[cols, np.arange(3)] = 1.0
-            x = self._lu.solve(rhs)[cols]
+            unit = np.zeros(len(self.indptr) - 1)
+            x = np.empty((3, 3))
+            for k, col in enumerate(cols):  # three solves: qdldl takes one right-hand side
+                unit[col] = 1.0
+                x[:, k] = solver.solve(unit)[cols]
+                unit[col] = 0.0
             block = self._solved[node] = 0.5 * (x + x.T)
         return block.copy()
 
@@ -114,9 +166,10 @@ class _Normal:
     """The sparsity of the normal equations ``H dx = -g`` of one set of edges.
 
     Every edge touches the 3 + 3 unknowns of its two nodes (node 0's are fixed and dropped), so
-    ``H`` is the sum of one 6 x 6 block per edge. The block entries' places in a CSC matrix
-    are found once; each iteration then adds the blocks up with one ``bincount`` instead of
-    forming the Jacobian and ``J'J`` (a third of an adjustment's time before).
+    ``H`` is the sum of one 6 x 6 block per edge. The places of the block entries of ``H``'s
+    upper triangle (all the factorisation reads) in a CSC matrix are found once; each
+    iteration then adds the blocks up with one ``bincount`` instead of forming the Jacobian and
+    ``J'J`` (a third of an adjustment's time before).
     """
 
     def __init__(self, i: np.ndarray, j: np.ndarray, n: int) -> None:
@@ -127,7 +180,7 @@ class _Normal:
         self.free = cols >= 0  # (m, 6): the unknowns an edge's residual moves
         rows = np.broadcast_to(cols[:, :, None], (len(i), 6, 6))
         colb = np.broadcast_to(cols[:, None, :], (len(i), 6, 6))
-        self.keep = self.free[:, :, None] & self.free[:, None, :]
+        self.keep = self.free[:, :, None] & self.free[:, None, :] & (rows <= colb)
         key = colb[self.keep] * size + rows[self.keep]  # column-major: CSC order
         every = np.arange(size)  # the diagonal is stored whole (damping adds to it)
         unique, slot = np.unique(np.concatenate([key, every * size + every]),
@@ -139,7 +192,7 @@ class _Normal:
         self.grad_slot = cols[self.free]
 
     def matrix(self, blocks: FloatArray) -> csc_matrix:
-        """``H`` from the per-edge blocks ``(m, 6, 6)``."""
+        """``H``'s upper triangle from the per-edge blocks ``(m, 6, 6)``."""
         data = np.bincount(self.slot, weights=blocks[self.keep], minlength=len(self.indices))
         return csc_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
 
@@ -214,8 +267,9 @@ class PoseGraph:
             return float(w @ chi2), H, g, chi2
 
         w = np.ones(m)
+        factor = _Factor()  # one order for every factorisation of this pattern
         x, H, chi2 = self._levenberg_marquardt(poses.copy(), lambda p: linearise(p, w),
-                                               max_iterations, normal.diagonal)
+                                               max_iterations, normal.diagonal, factor)
         c2 = ROBUST_C2
         if (robust & (chi2 > c2)).any():
             mu = min(2.0 * float(chi2[robust].max()) / c2, GNC_START)
@@ -223,26 +277,27 @@ class PoseGraph:
                 mu = max(mu / GNC_STEP, 1.0)
                 w = np.where(robust, (mu * c2 / (chi2 + mu * c2)) ** 2, 1.0)
                 x, H, chi2 = self._levenberg_marquardt(
-                    x, lambda p, w=w: linearise(p, w), GNC_ITERATIONS, normal.diagonal,
+                    x, lambda p, w=w: linearise(p, w), GNC_ITERATIONS, normal.diagonal, factor,
                     STEP_TOLERANCE if mu == 1.0 else GNC_STEP_TOLERANCE)
                 if mu == 1.0:
                     break
         self.weights = w
         x[:, 2] = wrap_angle(x[:, 2])
         try:
-            self.marginals = Marginals(H, n)
+            self.marginals = Marginals(H, n, factor)
         except RuntimeError:  # singular: an unconstrained node
             self.marginals = None
         return x
 
     @staticmethod
     def _levenberg_marquardt(x: FloatArray, linearise, max_iterations: int,
-                             diagonal_slots: np.ndarray, step_tolerance: float = STEP_TOLERANCE
+                             diagonal_slots: np.ndarray, factor: _Factor,
+                             step_tolerance: float = STEP_TOLERANCE
                              ) -> tuple[FloatArray, csc_matrix, FloatArray]:
         """Minimise the cost ``linearise`` gives, from ``x`` (node 0 fixed), until an undamped
-        step moves nothing by ``step_tolerance``; the diagonal of its ``H`` sits at
-        ``diagonal_slots`` of the matrix's data. Returns the poses, and ``H`` and each edge's
-        chi^2 there."""
+        step moves nothing by ``step_tolerance``; the diagonal of its ``H`` (an upper
+        triangle) sits at ``diagonal_slots`` of the matrix's data, and ``factor`` solves the
+        damped equations. Returns the poses, and ``H`` and each edge's chi^2 there."""
 
         def step(p: FloatArray, dx: FloatArray) -> FloatArray:
             q = p.copy()
@@ -256,11 +311,11 @@ class PoseGraph:
         for _ in range(max_iterations):
             damped = H.copy()
             damped.data[slots] += lam * np.maximum(H.data[slots], 1e-9)
-            try:
-                dx = -splu(damped, **SPD).solve(g)
-            except RuntimeError:  # singular: damp harder
+            solved = factor.solve(damped, g)
+            if solved is None:  # not positive definite to working precision: damp harder
                 lam *= 10.0
                 continue
+            dx = -solved
             trial = step(x, dx)
             cost_t, H_t, g_t, chi2_t = linearise(trial)
             if cost_t <= cost:
