@@ -185,8 +185,16 @@ class MilestoneManager:
         return self._poses.view[self._row(milestone_id)]
 
     def _row(self, milestone_id: int) -> int:
-        row = int(np.searchsorted(self.ids, milestone_id))  # ids only ever increase
-        if row >= len(self) or self.ids[row] != milestone_id:
+        ids = self._ids.view
+        if len(ids):
+            # Ids only ever increase, by one within a session: the row is usually the id's
+            # distance from the first (asked for several times a scan, where a binary search
+            # costs more than the rest of a pose look-up).
+            row = milestone_id - int(ids[0])
+            if 0 <= row < len(ids) and ids[row] == milestone_id:
+                return int(row)
+        row = int(np.searchsorted(ids, milestone_id))
+        if row >= len(ids) or ids[row] != milestone_id:
             raise KeyError(f"no milestone with id {milestone_id}")
         return row
 

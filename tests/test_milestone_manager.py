@@ -163,6 +163,23 @@ def test_store_round_trip_is_exact(tmp_path):
     assert back.add([50, 50, 0], r, **GEOM) == mgr.add([50, 50, 0], r, **GEOM)
 
 
+def test_milestones_are_found_by_id_where_the_ids_leave_gaps():
+    state = recorded().state()
+    keep = np.r_[0:3, 5:len(state["ids"])]  # as if two were never stored
+    lengths = state["scan_lengths"]
+    scans = np.split(state["scans"], np.cumsum(lengths)[:-1])
+    state.update({k: state[k][keep] for k in ("ids", "poses", "stamps", "signatures",
+                                               "features", "scan_lengths")})
+    state["scans"] = np.concatenate([scans[k] for k in keep])
+    mgr = MilestoneManager.from_state(state)
+    for row, mid in enumerate(mgr.ids):
+        assert np.array_equal(mgr.pose(mid), state["poses"][row])
+        assert np.array_equal(mgr.scan(mid), scans[keep[row]])
+    for missing in (3, 4, int(mgr.ids[-1]) + 1, -1):
+        with pytest.raises(KeyError):
+            mgr.pose(missing)
+
+
 def test_store_errors_are_clear(tmp_path):
     path = tmp_path / "m.npz"
     save_milestones(path, recorded())
