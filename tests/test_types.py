@@ -18,6 +18,7 @@ from vmp.types import (
     rotate_covariance,
     rotation_matrix,
     transform_points,
+    widest_variance,
     wrap_angle,
 )
 
@@ -171,3 +172,14 @@ def test_compose_and_inverse_covariances_match_sampling():
                                atol=1e-12)
     back = rotate_covariance(rotate_covariance(cov_b, 0.8), -0.8)
     np.testing.assert_allclose(back, cov_b, atol=1e-15)
+
+
+def test_the_widest_variance_is_the_larger_eigenvalue_of_the_position_block():
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        a = rng.normal(size=(3, 3)) * rng.uniform(1e-4, 10.0)
+        cov = a @ a.T
+        want = np.linalg.eigvalsh(cov[:2, :2])[-1]
+        assert math.isclose(widest_variance(cov), want, rel_tol=1e-12, abs_tol=1e-15)
+    assert widest_variance(np.diag([0.5, 2.0, 9.0])) == 2.0  # the heading's is not a position's
+    assert widest_variance(np.zeros((3, 3))) == 0.0

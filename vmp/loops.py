@@ -28,7 +28,7 @@ from milestones.manager import MilestoneManager
 from vmp.branch_bound import Match, SearchGrid, search, search_points
 from vmp.config import MappingConfig
 from vmp.registration import Reference, Registration, fits, register
-from vmp.types import FloatArray, ScanFrame, relative, transform_points
+from vmp.types import FloatArray, ScanFrame, relative, transform_points, widest_variance
 
 __all__ = ["Find", "LoopSearch"]
 
@@ -135,11 +135,11 @@ class LoopSearch:
         out = []
         for mid, dist in zip(ids[far_back][reach], d[reach], strict=True):  # a handful
             cov = drift(int(mid))
-            wxy = float(np.clip(SIGMAS * math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(),
-                                                       0.0)), MIN_WINDOW_XY, MAX_WINDOW_XY))
+            wxy = min(max(SIGMAS * math.sqrt(max(widest_variance(cov), 0.0)), MIN_WINDOW_XY),
+                      MAX_WINDOW_XY)
             if dist <= wxy + REACH:
-                wth = float(np.clip(SIGMAS * math.sqrt(cov[2, 2]), MIN_WINDOW_THETA,
-                                    MAX_WINDOW_THETA))
+                wth = min(max(SIGMAS * math.sqrt(cov[2, 2]), MIN_WINDOW_THETA),
+                          MAX_WINDOW_THETA)
                 out.append((int(mid), wxy, wth))
         return out
 

@@ -24,7 +24,15 @@ from milestones.manager import MilestoneManager
 from vmp.config import MappingConfig
 from vmp.fusion import CHI2_3DOF_99, pose_residual
 from vmp.registration import MIN_POINTS, Reference, Registration, fits, register
-from vmp.types import BeamGeometry, FloatArray, ScanFrame, compose, relative, rotate_covariance
+from vmp.types import (
+    BeamGeometry,
+    FloatArray,
+    ScanFrame,
+    compose,
+    relative,
+    rotate_covariance,
+    widest_variance,
+)
 
 __all__ = ["Doubt", "Kind", "Match", "Matcher", "Reason", "Seed", "pins"]
 
@@ -87,9 +95,8 @@ def pins(reg: Registration) -> bool:
     alone."""
     if reg.by_corners:
         return False
-    sd = np.sqrt(np.linalg.eigvalsh(reg.covariance[:2, :2]))
-    return bool(sd.max() <= PINNED_SIGMA_XY and math.sqrt(reg.covariance[2, 2])
-                <= PINNED_SIGMA_THETA)
+    return bool(math.sqrt(max(widest_variance(reg.covariance), 0.0)) <= PINNED_SIGMA_XY
+                and math.sqrt(reg.covariance[2, 2]) <= PINNED_SIGMA_THETA)
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,15 @@ from vmp.loops import NEIGHBOURS, LoopSearch
 from vmp.mapfile import MapData
 from vmp.matcher import Doubt, Kind, Match, Matcher, Seed
 from vmp.submaps import Submaps
-from vmp.types import BeamGeometry, FloatArray, ScanFrame, compose, inverse, relative
+from vmp.types import (
+    BeamGeometry,
+    FloatArray,
+    ScanFrame,
+    compose,
+    inverse,
+    relative,
+    widest_variance,
+)
 from vmp.vector_map import VectorMap
 from vmp.view import NullView, View
 
@@ -144,7 +152,7 @@ class Pipeline:
                 followed_to = mid
             summed = P + doubt.via_anchor + doubt.milestone(mid)
             chain = along.get(mid)
-            if chain is None or _widest(chain) >= _widest(summed):
+            if chain is None or widest_variance(chain) >= widest_variance(summed):
                 return summed
             return chain
 
@@ -299,7 +307,3 @@ class Pipeline:
             s["loop edges down-weighted"] = int((graph.weights[loops] < DOWN_WEIGHTED).sum())
         return s
 
-
-def _widest(cov: FloatArray) -> float:
-    """The largest variance of a pose covariance's position (m^2)."""
-    return float(np.linalg.eigvalsh(cov[:2, :2])[-1])

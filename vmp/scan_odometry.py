@@ -17,7 +17,7 @@ import numpy as np
 from vmp.config import MotionNoise, RegistrationConfig, ScanOdometryConfig
 from vmp.fusion import CHI2_3DOF_99, motion_covariance
 from vmp.registration import MIN_POINTS, Reference, fits, register
-from vmp.types import FloatArray, compose, inverse, relative
+from vmp.types import FloatArray, compose, inverse, relative, widest_variance
 
 __all__ = ["ScanOdometry"]
 
@@ -267,7 +267,7 @@ def _percentile(ordered: list[float], q: float) -> float:
 def _sees_all(cov: FloatArray) -> bool:
     """Whether a registration's covariance pins every direction to :data:`SEES_XY` and
     :data:`SEES_THETA`."""
-    return bool(math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]).max(), 0.0)) <= SEES_XY
+    return bool(math.sqrt(max(widest_variance(cov), 0.0)) <= SEES_XY
                 and math.sqrt(cov[2, 2]) <= SEES_THETA)
 
 

@@ -28,6 +28,7 @@ __all__ = [
     "rotate_covariance",
     "rotation_matrix",
     "transform_points",
+    "widest_variance",
     "wrap_angle",
 ]
 
@@ -91,6 +92,14 @@ def rotate_covariance(cov: ArrayLike, theta: float) -> FloatArray:
     c, s = math.cos(theta), math.sin(theta)
     rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     return rot @ np.asarray(cov, dtype=np.float64) @ rot.T
+
+
+def widest_variance(cov: ArrayLike) -> float:
+    """The largest variance of a pose covariance's position (m^2): the larger eigenvalue of
+    its 2x2 block, in closed form (LAPACK's call costs more than the arithmetic, and the
+    mapper asks several times a scan)."""
+    a, b, d = float(cov[0][0]), 0.5 * (float(cov[0][1]) + float(cov[1][0])), float(cov[1][1])
+    return 0.5 * (a + d) + math.hypot(0.5 * (a - d), b)
 
 
 def compose_covariance(a: ArrayLike, cov_a: ArrayLike, b: ArrayLike, cov_b: ArrayLike
