@@ -87,3 +87,54 @@ def test_the_search_is_independent_of_where_the_points_lie():
     live = np.vstack([_seen_from(world, truth), [[500.0, -300.0], [-1e4, 1e4]]])
     found = search(grid, live, compose(truth, [0.2, 0.1, 0.0]), 0.5, 0.1)
     assert np.hypot(*(found.pose[:2] - truth[:2])) <= 0.1
+
+
+def _likelihood_by_distance_transform(points, resolution, sigma, pad):
+    """The likelihood grid as a Euclidean distance transform of the whole grid gives it
+    (how it was computed before the cells were stamped)."""
+    from scipy.ndimage import distance_transform_edt
+
+    margin = math.ceil(3.0 * sigma / resolution) + 1
+    lo = points.min(axis=0) - margin * resolution
+    hi = points.max(axis=0) + margin * resolution
+    shape = np.ceil((hi - lo) / resolution).astype(np.int64) + 1
+    cells = np.rint((points - lo) / resolution).astype(np.int64)
+    free = np.ones(tuple(shape), dtype=bool)
+    free[cells[:, 0], cells[:, 1]] = False
+    field = np.exp(-0.5 * (distance_transform_edt(free) * resolution / sigma) ** 2)
+    return lo - pad * resolution, np.pad(np.round(255.0 * field).astype(np.uint8), pad)
+
+
+@pytest.mark.parametrize(("resolution", "sigma", "pad"),
+                         [(0.1, 0.1, 0), (0.1, 0.1, 7), (0.05, 0.1, 3), (0.1, 0.25, 1),
+                          (0.1, 0.05, 2)])
+def test_the_stamped_likelihood_is_the_distance_transforms(resolution, sigma, pad):
+    from vmp.branch_bound import likelihood_grid
+
+    rng = np.random.default_rng(3)
+    points = np.vstack([_room(), rng.uniform(-2, 14, (300, 2))])
+    origin, grid = likelihood_grid(points, resolution, sigma, pad)
+    want_origin, want = _likelihood_by_distance_transform(points, resolution, sigma, pad)
+    np.testing.assert_array_equal(origin, want_origin)
+    assert grid.dtype == np.uint8 and grid.shape == want.shape
+    np.testing.assert_array_equal(grid, want)
+
+
+def test_a_block_maximum_is_numpys():
+    from vmp.branch_bound import _block_max
+
+    def in_numpy(grid, step):  # as it was written before it was compiled
+        out = grid.copy()
+        out[:-step, :] = np.maximum(out[:-step, :], grid[step:, :])
+        shifted = out.copy()
+        out[:, :-step] = np.maximum(out[:, :-step], shifted[:, step:])
+        return out
+
+    grid = np.random.default_rng(5).integers(0, 256, (37, 23)).astype(np.uint8)
+    for step in (1, 2, 4, 16, 30):
+        np.testing.assert_array_equal(_block_max(grid, step, (0, 37), (0, 23)),
+                                      in_numpy(grid, step))
+    grid[:5], grid[30:], grid[:, :3], grid[:, 20:] = 0, 0, 0, 0  # zero but rows 5-29, cols 3-19
+    for step in (1, 3, 8):
+        np.testing.assert_array_equal(_block_max(grid, step, (5, 30), (3, 20)),
+                                      in_numpy(grid, step))

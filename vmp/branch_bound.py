@@ -20,12 +20,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
 
 from vmp.jit import kernel
 from vmp.types import FloatArray
 
-__all__ = ["Match", "SearchGrid", "likelihood_field", "search", "search_points"]
+__all__ = ["Match", "SearchGrid", "likelihood_grid", "search", "search_points"]
 
 
 SEARCH_POINTS = 100  # live points searched with (evenly thinned) ...
@@ -50,23 +49,57 @@ class Match:
     evaluated: int  # candidate poses scored, all levels together
 
 
-def likelihood_field(points: FloatArray, resolution: float, sigma: float,
-                     pad: int) -> tuple[FloatArray, FloatArray]:
-    """The likelihood ``exp(-d^2 / 2 sigma^2)`` of the distance ``d`` to the nearest of the
-    finite ``points`` ``(N, 2)``, per cell: the world position of cell (0, 0)'s centre and the
-    field, covering the points plus a few ``sigma`` and ``pad`` cells of zeros on every side."""
+def likelihood_grid(points: FloatArray, resolution: float, sigma: float,
+                    pad: int) -> tuple[FloatArray, np.ndarray]:
+    """The likelihood ``exp(-d^2 / 2 sigma^2)`` of the distance ``d`` from each cell's centre
+    to the nearest cell holding one of the finite ``points`` ``(N, 2)``, in steps of 1/255 (one
+    byte a cell): the world position of cell (0, 0)'s centre and the grid, covering the points
+    plus a few ``sigma`` and ``pad`` cells of zeros on every side.
+
+    Cell distances are whole numbers under a root, so the likelihood takes one value per
+    squared distance; each point's cell stamps the few within reach of a non-zero value (a
+    radius of 3.5 sigma), keeping the larger. (A Euclidean distance transform of the whole
+    grid, then ``exp`` of every cell, took 7.1 of a 2,400-point submap's 10.6 ms.)
+    """
     margin = math.ceil(3.0 * sigma / resolution) + 1
     lo = points.min(axis=0) - margin * resolution
     hi = points.max(axis=0) + margin * resolution
     shape = np.ceil((hi - lo) / resolution).astype(np.int64) + 1
-    cells = np.rint((points - lo) / resolution).astype(np.int64)
-    free = np.ones(tuple(shape), dtype=bool)
-    free[cells[:, 0], cells[:, 1]] = False
-    field = np.exp(-0.5 * (distance_transform_edt(free) * resolution / sigma) ** 2)
-    if pad:  # the zeros are added after the distance transform: it need not cover them
-        field = np.pad(field, pad)
-        lo = lo - pad * resolution
-    return lo, field
+    cells = np.rint((points - lo) / resolution).astype(np.int64) + pad
+    return lo - pad * resolution, _stamp(cells, shape[0] + 2 * pad, shape[1] + 2 * pad,
+                                          _likelihood_by_squared_distance(resolution, sigma))
+
+
+def _likelihood_by_squared_distance(resolution: float, sigma: float) -> np.ndarray:
+    """``round(255 exp(-d^2 / 2 sigma^2))`` for ``d`` = ``resolution`` times the root of 0, 1,
+    2, ... cells squared, up to the last that is not zero."""
+    reach = math.ceil(4.0 * sigma / resolution) + 1  # exp(-8) * 255 rounds to 0
+    d = np.sqrt(np.arange(reach * reach + 1, dtype=np.float64))
+    value = np.round(255.0 * np.exp(-0.5 * (d * resolution / sigma) ** 2)).astype(np.uint8)
+    return value[:np.flatnonzero(value)[-1] + 1]
+
+
+@kernel
+def _stamp(cells: np.ndarray, rows: int, cols: int, value: np.ndarray) -> np.ndarray:
+    """A ``rows x cols`` byte grid: per cell, the largest ``value[d2]`` over the ``cells``
+    ``(N, 2)`` at squared distance ``d2`` from it."""
+    out = np.zeros((rows, cols), dtype=np.uint8)
+    far = len(value)
+    radius = int(np.sqrt(far - 1))
+    for k in range(cells.shape[0]):
+        cx, cy = cells[k, 0], cells[k, 1]
+        for dx in range(-radius, radius + 1):
+            x = cx + dx
+            if x < 0 or x >= rows:
+                continue
+            for dy in range(-radius, radius + 1):
+                y = cy + dy
+                d2 = dx * dx + dy * dy
+                if y < 0 or y >= cols or d2 >= far:
+                    continue
+                if value[d2] > out[x, y]:
+                    out[x, y] = value[d2]
+    return out
 
 
 class SearchGrid:
@@ -87,13 +120,17 @@ class SearchGrid:
         # Zeros around the likelihood, wide enough that a point clamped into the padding
         # (see :meth:`clamp`) reads zeros under every offset of the window on every level.
         self.pad = 2 * self.max_steps + (1 << depth) + 1
-        origin, field = likelihood_field(pts, self.resolution, self.sigma, 0)
-        self.origin = origin - self.pad * self.resolution
         # One byte a cell: the block maxima are gathered by the thousand per search level.
-        # Padded once in bytes (the padding is most of a submap's grid).
-        self.levels = [np.pad(np.round(255.0 * field).astype(np.uint8), self.pad)]
+        self.origin, level0 = likelihood_grid(pts, self.resolution, self.sigma, self.pad)
+        self.levels = [level0]
+        # Where the level below is not zero: the likelihood inside the padding, widened
+        # towards the origin by each level's blocks.
+        rows = [self.pad, level0.shape[0] - self.pad]
+        cols = [self.pad, level0.shape[1] - self.pad]
         for k in range(1, depth + 1):
-            self.levels.append(_block_max(self.levels[-1], 1 << (k - 1)))
+            step = 1 << (k - 1)
+            self.levels.append(_block_max(self.levels[-1], step, tuple(rows), tuple(cols)))
+            rows[0], cols[0] = max(rows[0] - step, 0), max(cols[0] - step, 0)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -128,13 +165,31 @@ class SearchGrid:
         return float(self.levels[0][cx, cy].mean()) / 255.0
 
 
-def _block_max(grid: np.ndarray, step: int) -> np.ndarray:
+@kernel
+def _block_max(grid: np.ndarray, step: int, rows: tuple[int, int], cols: tuple[int, int]
+               ) -> np.ndarray:
     """The maximum of the four cells ``step`` apart: a block of ``2 step`` from blocks of
-    ``step`` (cells beyond the edge count as zero)."""
-    out = grid.copy()
-    out[:-step, :] = np.maximum(out[:-step, :], grid[step:, :])
-    shifted = out.copy()
-    out[:, :-step] = np.maximum(out[:, :-step], shifted[:, step:])
+    ``step`` (cells beyond the edge count as zero). ``grid`` is zero outside the rows
+    ``rows[0]:rows[1]`` and columns ``cols[0]:cols[1]``: only the blocks reaching into them
+    are worked out (a submap's padding is most of its grid)."""
+    n_rows, n_cols = grid.shape
+    out = np.zeros_like(grid)
+    x0, y0 = max(rows[0] - step, 0), max(cols[0] - step, 0)
+    x_in, y_in = min(rows[1], n_rows - step), min(cols[1], n_cols - step)
+    for x in range(x0, x_in):  # blocks whole inside the grid: no bounds to check
+        for y in range(y0, y_in):
+            out[x, y] = max(max(grid[x, y], grid[x, y + step]),
+                            max(grid[x + step, y], grid[x + step, y + step]))
+    for x in range(x0, rows[1]):  # blocks that cross the last rows or columns
+        for y in range(y_in if x < x_in else y0, cols[1]):
+            m = grid[x, y]
+            if y + step < n_cols:
+                m = max(m, grid[x, y + step])
+            if x + step < n_rows:
+                m = max(m, grid[x + step, y])
+                if y + step < n_cols:
+                    m = max(m, grid[x + step, y + step])
+            out[x, y] = m
     return out
 
 

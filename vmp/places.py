@@ -19,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from milestones.manager import MilestoneManager
-from vmp.branch_bound import SearchGrid, likelihood_field
+from vmp.branch_bound import SearchGrid, likelihood_grid
 from vmp.config import RegistrationConfig
 from vmp.registration import Reference, Registration, explained, fits, last_gate
 from vmp.submaps import voxel_thin
@@ -57,8 +57,7 @@ class Place:
         if self._grid is not None:
             return self._grid.score(points, pose)
         if self._field is None:
-            origin, field = likelihood_field(self.points, RESOLUTION, SIGMA, 1)
-            self._field = origin, np.round(255.0 * field).astype(np.uint8)
+            self._field = likelihood_grid(self.points, RESOLUTION, SIGMA, 1)
         origin, field = self._field
         if len(points) == 0:
             return 0.0
