@@ -393,9 +393,13 @@ class MilestoneManager:
             cov = np.asarray(covariance, dtype=np.float64)
             if pred.shape != (3,) or cov.shape != (3, 3):
                 raise ValueError("predicted_pose must be (3,) and covariance (3, 3)")
-            S = cov[:2, :2] + np.eye(2) * c.recognition_radius**2
-            delta = self.poses[:, :2] - pred[:2]
-            gate_d2 = np.einsum("mi,ij,mj->m", delta, np.linalg.inv(S), delta)
+            # delta' S^-1 delta per milestone, S the position covariance widened by the
+            # recognition radius (2 x 2: inverted by hand, NumPy's call costs more than this).
+            r2 = c.recognition_radius**2
+            a, b, d = cov[0, 0] + r2, cov[0, 1] + cov[1, 0], cov[1, 1] + r2
+            dx = self.poses[:, 0] - pred[0]
+            dy = self.poses[:, 1] - pred[1]
+            gate_d2 = (d * dx * dx - b * dx * dy + a * dy * dy) / (a * d - cov[0, 1] * cov[1, 0])
             rows = np.flatnonzero(gate_d2 <= CHI2_2DOF_99)
         found = self._search(sig, rows)
         if found is None:
@@ -410,11 +414,15 @@ class MilestoneManager:
             ok = err**2 / (cov[2, 2] + HEADING_SIGMA**2) <= CHI2_1DOF_99
             rows, scores, offsets, shifts, poses = (a[ok] for a in (rows, scores, offsets,
                                                                       shifts, poses))
-        order = np.argsort(scores, kind="stable")
+        if len(scores) == 0:
+            return []
+        top = np.argsort(scores, kind="stable")[:max_candidates]
+        # Each candidate's best rival: the best score of a milestone distinct from it.
+        apart = poses[None, :, :2] - poses[top, None, :2]
+        distinct = np.hypot(apart[..., 0], apart[..., 1]) > DISTINCT_RADIUS
+        rivals = np.where(distinct, scores[None, :], np.inf).min(axis=1)
         out = []
-        for i in order[:max_candidates]:  # a handful of candidates, not a hot loop
-            rivals = np.hypot(*(poses[:, :2] - poses[i, :2]).T) > DISTINCT_RADIUS
-            rival = scores[rivals].min() if rivals.any() else np.inf
+        for i, rival in zip(top, rivals, strict=True):  # a handful of candidates
             ratio = float(scores[i] / rival) if np.isfinite(rival) and rival > 0 else 0.0
             out.append(Candidate(
                 id=int(self.ids[rows[i]]), pose=poses[i].copy(),
