@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from vmp.branch_bound import SearchGrid, _angles, search
+from vmp.branch_bound import Match, SearchGrid, _angles, block_sums, search
 from vmp.types import compose, inverse, transform_points
 
 
@@ -132,9 +132,117 @@ def test_a_block_maximum_is_numpys():
 
     grid = np.random.default_rng(5).integers(0, 256, (37, 23)).astype(np.uint8)
     for step in (1, 2, 4, 16, 30):
-        np.testing.assert_array_equal(_block_max(grid, step, (0, 37), (0, 23)),
-                                      in_numpy(grid, step))
+        out = np.zeros_like(grid)
+        _block_max(grid, step, (0, 37), (0, 23), out)
+        np.testing.assert_array_equal(out, in_numpy(grid, step))
     grid[:5], grid[30:], grid[:, :3], grid[:, 20:] = 0, 0, 0, 0  # zero but rows 5-29, cols 3-19
     for step in (1, 3, 8):
-        np.testing.assert_array_equal(_block_max(grid, step, (5, 30), (3, 20)),
-                                      in_numpy(grid, step))
+        out = np.zeros_like(grid)
+        _block_max(grid, step, (5, 30), (3, 20), out)
+        np.testing.assert_array_equal(out, in_numpy(grid, step))
+
+
+# ---- the search as NumPy did it, before it was compiled: the compiled one must agree ------
+
+def _search_in_numpy(grid, points, center, window_xy, window_theta, min_score=0.0,
+                     exclude=None):
+    """The best pose of ``points`` within ``window_xy`` (either way, in x and y) and
+    ``window_theta`` of ``center``, or None when no pose scores ``min_score``.
+
+    ``exclude`` (a pose, a distance and a turn) leaves out the poses that near it: the best
+    pose elsewhere, to tell a clear peak from one of several alike.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    res, depth = grid.resolution, grid.depth
+    thetas = center[2] + _angles(pts, res, window_theta)
+    steps = min(math.ceil(window_xy / res - 1e-9), grid.max_steps)
+    # Each rotation's points, placed at the window's centre: cell indices (R, M).
+    cx, cy = grid.clamp(*grid.turned_cells(pts, center[0], center[1], thetas))
+    scale = 255.0 * len(pts)
+    stride = grid.shape[1]
+    flat = np.ascontiguousarray(cx * stride + cy)  # (R, M) flat cell indices
+    levels = [g.ravel() for g in grid.levels]
+
+    def scores(level: int, rot: np.ndarray, ox: np.ndarray, oy: np.ndarray) -> np.ndarray:
+        out = block_sums(levels[level], flat, rot, ox * stride + oy) / scale
+        if level == 0 and exclude is not None:  # bounds above stay bounds
+            pose, dxy, dth = exclude
+            near = (np.hypot(center[0] + ox * res - pose[0], center[1] + oy * res - pose[1])
+                    < dxy) & (np.abs((thetas[rot] - pose[2] + math.pi) % (2 * math.pi)
+                                     - math.pi) < dth)
+            out[near] = -1.0
+        return out
+
+    # The coarsest candidates: blocks of 2^depth cells whose children cover the window.
+    top = 1 << depth
+    corners = np.arange(-steps, steps + 1, top)
+    rot, ox, oy = (a.ravel() for a in np.meshgrid(np.arange(len(thetas)), corners, corners,
+                                                  indexing="ij"))
+    values = scores(depth, rot, ox, oy)
+    evaluated = len(rot)
+    best: tuple[float, tuple[int, int, int] | None] = (min_score, None)
+    for level in range(depth, 0, -1):
+        keep = values >= best[0]
+        if not keep.any():
+            break
+        rot, ox, oy, values = rot[keep], ox[keep], oy[keep], values[keep]
+        best = _dive_in_numpy(scores, level, rot, ox, oy, values, steps, best)
+        half = 1 << (level - 1)
+        n = len(rot)
+        rot = np.repeat(rot, 4)
+        ox = np.repeat(ox, 4) + np.tile([0, half, 0, half], n)
+        oy = np.repeat(oy, 4) + np.tile([0, 0, half, half], n)
+        inside = (ox <= steps) & (oy <= steps)
+        rot, ox, oy = rot[inside], ox[inside], oy[inside]
+        values = scores(level - 1, rot, ox, oy)
+        evaluated += len(rot)
+        if level == 1 and len(values):  # exact scores: the leaves
+            i = int(np.argmax(values))
+            if values[i] >= best[0]:
+                best = (float(values[i]), (int(rot[i]), int(ox[i]), int(oy[i])))
+    if best[1] is None:
+        return None
+    r, x, y = best[1]
+    pose = np.array([center[0] + x * res, center[1] + y * res,
+                     (thetas[r] + math.pi) % (2 * math.pi) - math.pi])
+    return Match(pose, best[0], evaluated)
+
+
+def _dive_in_numpy(scores, level: int, rot: np.ndarray, ox: np.ndarray, oy: np.ndarray,
+          level_scores: np.ndarray, steps: int, best: tuple) -> tuple:
+    """Follow the best candidate's best child down to level 0; a better exact score found
+    on the way raises the bound that prunes the others."""
+    i = int(np.argmax(level_scores))
+    r, x, y = rot[i], ox[i], oy[i]
+    for lv in range(level, 0, -1):
+        half = 1 << (lv - 1)
+        cx = np.array([x, x + half, x, x + half])
+        cy = np.array([y, y, y + half, y + half])
+        ok = (cx <= steps) & (cy <= steps)
+        cx, cy = cx[ok], cy[ok]
+        s = scores(lv - 1, np.full(len(cx), r), cx, cy)
+        j = int(np.argmax(s))
+        x, y = cx[j], cy[j]
+        if lv == 1 and s[j] >= best[0]:
+            return float(s[j]), (int(r), int(x), int(y))
+    return best
+
+
+def test_the_compiled_search_is_the_numpy_search():
+    world = _room()
+    rng = np.random.default_rng(11)
+    grid = SearchGrid(world, 0.1, 0.1, depth=5, max_window=4.0)
+    for trial in range(40):
+        truth = np.array([rng.uniform(2, 10), rng.uniform(2, 6), rng.uniform(-3, 3)])
+        pts = _seen_from(world, truth, keep=int(rng.integers(30, 150)))
+        pts = pts + rng.normal(0, 0.02, pts.shape)
+        center = truth + [rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(-0.2, 0.2)]
+        wxy, wth = rng.uniform(0.3, 4.0), rng.uniform(0.05, 0.5)
+        floor = rng.uniform(0.0, 0.8)
+        for exclude in (None, (truth, 0.5, 0.1)):
+            got = search(grid, pts, center, wxy, wth, floor, exclude=exclude)
+            want = _search_in_numpy(grid, pts, center, wxy, wth, floor, exclude=exclude)
+            assert (got is None) == (want is None), trial
+            if got is not None:
+                np.testing.assert_array_equal(got.pose, want.pose)
+                assert got.score == want.score and got.evaluated == want.evaluated
