@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from milestones.jit import kernel
 from milestones.methods import METHODS, Method, make_method
 from milestones.signature import FloatArray, make_signature, sample_step
 
@@ -256,10 +257,8 @@ class MilestoneManager:
         p = np.asarray(pose, dtype=np.float64)
         poses = self.poses if among is None else self.poses[
             np.searchsorted(self.ids, np.asarray(among, dtype=np.int64))]
-        d = np.hypot(*(poses[:, :2] - p[:2]).T)
-        turn = np.abs((poses[:, 2] - p[2] + np.pi) % (2 * np.pi) - np.pi)
-        near = (d < self.config.record_distance) & (turn < self.config.record_turn)
-        return not near.any()
+        return not _any_near(np.ascontiguousarray(poses), float(p[0]), float(p[1]),
+                             float(p[2]), self.config.record_distance, self.config.record_turn)
 
     def distinctiveness(self, sig: FloatArray, ranges: NDArray, pose: FloatArray,
                         max_range: float) -> str | None:
@@ -487,3 +486,15 @@ class MilestoneManager:
         mgr._next_id = int(state["next_id"])
         return mgr
 
+
+@kernel
+def _any_near(poses: FloatArray, x: float, y: float, theta: float, distance: float,
+              turn: float) -> bool:
+    """Whether a pose of ``poses`` ``(M, 3)`` lies within ``distance`` of (x, y) and within
+    ``turn`` of ``theta`` (asked every scan: NumPy's half dozen calls on the milestones'
+    poses cost more than the arithmetic)."""
+    for k in range(poses.shape[0]):
+        if math.hypot(poses[k, 0] - x, poses[k, 1] - y) < distance:
+            if abs((poses[k, 2] - theta + math.pi) % (2 * math.pi) - math.pi) < turn:
+                return True
+    return False
