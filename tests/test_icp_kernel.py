@@ -26,7 +26,7 @@ from vmp.registration import (
     Reference,
     last_gate,
 )
-from vmp.types import relative
+from vmp.types import relative, transform_points
 
 
 @pytest.mark.parametrize("gate", [0.08, 0.3, 0.5, 1.3])
@@ -199,3 +199,21 @@ def test_point_normals_are_the_k_d_trees(spread):
     np.testing.assert_array_equal(got_valid, valid)
     np.testing.assert_array_equal(got_corner, corner)
     np.testing.assert_allclose(got_normals, normals, rtol=0, atol=1e-12)
+
+
+def test_the_share_explained_is_the_k_d_trees():
+    """Points near a reference point, counted in its cells, as a k-d tree counts them."""
+    from vmp.registration import explained
+
+    rng = np.random.default_rng(9)
+    ref = Reference(np.concatenate([rng.uniform(-20, 20, (3000, 2)),
+                                    np.column_stack([np.linspace(0, 5, 200), np.zeros(200)])]))
+    pts = rng.uniform(-22, 22, (500, 2))
+    pose = np.array([0.3, -0.2, 0.4])
+    for distance in (0.05, 0.2, 0.6, 1.3):
+        placed = transform_points(pose, pts)
+        dist, _ = cKDTree(ref.points).query(placed, distance_upper_bound=distance)
+        want = np.count_nonzero(np.isfinite(dist)) / len(pts)
+        assert 0.0 < want < 1.0
+        assert explained(ref, pts, pose, distance) == want
+    assert explained(ref, np.zeros((0, 2)), pose, 0.2) == 0.0

@@ -37,8 +37,9 @@ FORMAT = "vmp-slam checkpoint"
 # count, the graph's marginals solved when asked; 3: a registration reference's line table;
 # 4: the back end's record edges, looked up for the drift along the path; 5: the pose of the
 # last matched scan, and the loop search's look-up of a submap's segments; 6: the graph's
-# marginals keep the information's upper triangle).
-VERSION = 6
+# marginals keep the information's upper triangle; 7: a registration reference holds no k-d
+# tree).
+VERSION = 7
 
 
 @dataclass(frozen=True)

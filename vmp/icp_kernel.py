@@ -17,7 +17,7 @@ import numpy as np
 
 from vmp.jit import kernel
 
-__all__ = ["CELL", "cell_keys", "fit_covariance", "point_normals", "run_icp"]
+__all__ = ["CELL", "cell_keys", "count_near", "fit_covariance", "point_normals", "run_icp"]
 
 CELL = 0.5  # cell side (m): ICP's widest correspondence gate, so a gate looks at 3 x 3 cells
 _OFFSET = 1 << 30  # cell coordinates are clipped to +-2^30 cells (5e8 m) and shifted positive
@@ -62,6 +62,17 @@ def _nearest(cells_keys, ref, qx, qy, gate):  # pragma: no cover - compiled
                 best_d2 = d2
                 best = k
     return best
+
+
+@kernel
+def count_near(keys, ref, points, distance):  # pragma: no cover - compiled
+    """How many of ``points`` lie closer than ``distance`` to a point of the reference
+    ``ref`` (sorted by :func:`cell_keys` ``keys``)."""
+    count = 0
+    for i in range(points.shape[0]):
+        if _nearest(keys, ref, points[i, 0], points[i, 1], distance) >= 0:
+            count += 1
+    return count
 
 
 @kernel

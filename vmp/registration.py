@@ -13,10 +13,9 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from vmp.config import RegistrationConfig
-from vmp.icp_kernel import cell_keys, fit_covariance, point_normals, run_icp
+from vmp.icp_kernel import cell_keys, count_near, fit_covariance, point_normals, run_icp
 from vmp.types import FloatArray, transform_points
 
 __all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "last_gate",
@@ -66,7 +65,7 @@ class Registration:
 
 
 class Reference:
-    """Reference points ``(N, 2)`` with a k-d tree and per-point normals, built once."""
+    """Reference points ``(N, 2)`` sorted by grid cell, with per-point normals, built once."""
 
     def __init__(self, points: FloatArray) -> None:
         pts = np.asarray(points, dtype=np.float64)
@@ -79,14 +78,6 @@ class Reference:
         pts = self.points = np.ascontiguousarray(pts[order])
         self.normals, self.valid, self.corner = point_normals(
             self.cell_keys, pts, min(NEIGHBOURS, len(pts)), MAX_NORMAL_SPREAD)
-        self._tree: cKDTree | None = None
-
-    @property
-    def tree(self) -> cKDTree:
-        """A k-d tree of the points (built on first use: only :func:`explained` asks)."""
-        if self._tree is None:
-            self._tree = cKDTree(self.points)
-        return self._tree
 
 
 def fits(reg: Registration, config: RegistrationConfig) -> bool:
@@ -103,12 +94,13 @@ def last_gate(rms: float) -> float:
 def explained(reference: Reference, points: FloatArray, pose: FloatArray,
               distance: float) -> float:
     """The share of ``points`` (their frame) placed at ``pose`` that lie within ``distance``
-    of a reference point, on a line or not."""
+    of a reference point, on a line or not (looked up in the reference's cells, as ICP does:
+    a k-d tree built for this took 2 ms on a localizer's 13,000-point submap)."""
     if len(points) == 0:
         return 0.0
-    placed = transform_points(np.asarray(pose, dtype=np.float64), points)
-    dist, _ = reference.tree.query(placed, distance_upper_bound=distance)
-    return float(np.count_nonzero(np.isfinite(dist))) / len(points)
+    placed = np.ascontiguousarray(transform_points(np.asarray(pose, dtype=np.float64), points))
+    near = count_near(reference.cell_keys, reference.points, placed, float(distance))
+    return near / len(points)
 
 
 def register(reference: Reference, points: FloatArray, initial: FloatArray,

@@ -5,8 +5,7 @@ and milestones) into a JSON-able tree plus a dict of NumPy arrays; :func:`decode
 it. Shared objects stay shared and cycles close (each object is written once, then named by
 reference). Only classes of this program's packages and of filterpy may be rebuilt, and only
 by filling their attributes (no constructor, no code named by the file runs); anything else
-in the graph is an error that names where it was found. A k-d tree is rebuilt from its points
-(the same points give the same tree). Attributes a class names in its ``TRANSIENT`` tuple (a
+in the graph is an error that names where it was found. Attributes a class names in its ``TRANSIENT`` tuple (a
 factorisation it can redo from what it keeps) are not written and come back as None. Objects
 given in ``keep`` (a view, whose recording
 cannot be saved) are written by name and replaced by the caller's on decoding.
@@ -20,7 +19,6 @@ from collections import Counter, OrderedDict, deque
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 __all__ = ["StateError", "decode", "encode"]
 
@@ -83,9 +81,6 @@ class _Encoder:
         if type(o) in (dict, Counter, OrderedDict):
             return {"$dict": [[self.enc(k, f"{path}.key"), self.enc(v, f"{path}[{k!r}]")]
                               for k, v in o.items()], "type": type(o).__name__, "ref": n}
-        if isinstance(o, cKDTree):
-            return {"$kdtree": self.enc(np.asarray(o.data), f"{path}.data"),
-                    "leafsize": int(o.leafsize), "ref": n}
         if hasattr(o, "__self__") and hasattr(o, "__func__"):  # a bound method
             return {"$method": self.enc(o.__self__, f"{path}.__self__"),
                     "name": o.__func__.__name__, "ref": n}
@@ -162,9 +157,6 @@ class _Decoder:
             for k, v in node["$dict"]:
                 m[self.dec(k)] = self.dec(v)  # type: ignore[index]
             return m
-        if "$kdtree" in node:
-            return self._made(node, cKDTree(self.dec(node["$kdtree"]),
-                                            leafsize=node["leafsize"]))
         if "$method" in node:
             return self._made(node, getattr(self.dec(node["$method"]), node["name"]))
         if "$obj" in node:
