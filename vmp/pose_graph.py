@@ -91,7 +91,12 @@ class _Factor:
             self._solver = None
             return None
         if not (self._solver.factors()[1] > 0).all():  # update() does not say
+            self._solver = None  # nothing to solve again with
             return None
+        return self._solver.solve(b)
+
+    def solve_again(self, b: FloatArray) -> FloatArray:
+        """``A^-1 b`` for the matrix of the last :meth:`solve` that succeeded."""
         return self._solver.solve(b)
 
     def _same_pattern(self, upper: csc_matrix) -> bool:
@@ -150,13 +155,13 @@ class Marginals:
             return np.zeros((3, 3))
         block = self._solved.get(node)
         if block is None:
-            solver = self._factorise()._solver
+            factor = self._factorise()
             cols = 3 * (node - 1) + np.arange(3)
             unit = np.zeros(len(self.indptr) - 1)
             x = np.empty((3, 3))
             for k, col in enumerate(cols):  # three solves: qdldl takes one right-hand side
                 unit[col] = 1.0
-                x[:, k] = solver.solve(unit)[cols]
+                x[:, k] = factor.solve_again(unit)[cols]
                 unit[col] = 0.0
             block = self._solved[node] = 0.5 * (x + x.T)
         return block.copy()
