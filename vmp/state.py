@@ -5,10 +5,10 @@ and milestones) into a JSON-able tree plus a dict of NumPy arrays; :func:`decode
 it. Shared objects stay shared and cycles close (each object is written once, then named by
 reference). Only classes of this program's packages and of filterpy may be rebuilt, and only
 by filling their attributes (no constructor, no code named by the file runs); anything else
-in the graph is an error that names where it was found. Attributes a class names in its ``TRANSIENT`` tuple (a
-factorisation it can redo from what it keeps) are not written and come back as None. Objects
-given in ``keep`` (a view, whose recording
-cannot be saved) are written by name and replaced by the caller's on decoding.
+in the graph is an error that names where it was found. Attributes a class names in its
+``TRANSIENT`` tuple (a factorisation it can redo from what it keeps) are not written and come
+back as None. Objects given in ``keep`` (a view, whose recording cannot be saved) are written
+by name and replaced by the caller's on decoding.
 """
 
 from __future__ import annotations
