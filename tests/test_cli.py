@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 import subprocess
 import sys
 
@@ -167,3 +168,21 @@ def test_the_parser_needs_nothing_of_the_mapper():
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                          check=True)
     assert out.stdout.strip() == ""
+
+
+def test_ctrl_c_inside_code_run_by_exec_still_ends_with_130(tmp_path):
+    """A Ctrl-C while SciPy builds its distributions by ``exec`` (in the first second of
+    ``python -m vmp map``) ended the process by SIGINT (-2), not with 130, though caught:
+    CPython marks such an interrupt unhandled, and run as a module (``-m``) it checks the
+    mark at exit."""
+    (tmp_path / "interrupted_in_exec.py").write_text(
+        "import vmp.cli.scenarios as s\n"
+        "s.run = lambda args: exec('raise KeyboardInterrupt')\n"
+        "from vmp.cli import main\n"
+        "raise SystemExit(main(['scenarios']))\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        [str(tmp_path), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    done = subprocess.run([sys.executable, "-m", "interrupted_in_exec"], capture_output=True,
+                          text=True, timeout=120, env=env)
+    assert done.returncode == 130, done.stderr
+    assert "vmp scenarios: interrupted" in done.stderr
