@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import ctypes
 import signal
 import sys
 import threading
 from collections.abc import Sequence
 
+from vmp.cli.interrupt import handled_interrupt
 from vmp.cli.parser import build_parser
 from vmp.errors import InputError
 
@@ -32,7 +32,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"vmp {args.command}: error: {exc.strerror or exc}{name}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        _handled_interrupt()
+        handled_interrupt()
         print(f"vmp {args.command}: interrupted", file=sys.stderr)
         return 130
     except _Terminated:
@@ -42,18 +42,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
-
-
-def _handled_interrupt() -> None:
-    """Tell CPython the KeyboardInterrupt was handled. One that leaves code run by ``exec`` of
-    a string (SciPy's statistics build their distributions that way while filterpy imports
-    them, in the first second of a `vmp map`) marks the interpreter as interrupted, caught or
-    not; run as a module (``python -m vmp``), it then kills itself with SIGINT at exit instead
-    of returning 130 (CPython 3.11: exit status -2 in 2 of 16 Ctrl-Cs 0.2-0.45 s into a run)."""
-    try:
-        ctypes.c_int.in_dll(ctypes.pythonapi, "_Py_UnhandledKeyboardInterrupt").value = 0
-    except (AttributeError, ValueError):  # an interpreter without that mark
-        pass
 
 
 class _Terminated(BaseException):

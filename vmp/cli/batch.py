@@ -28,6 +28,7 @@ from typing import Any
 
 import yaml
 
+from vmp.cli.interrupt import handled_interrupt
 from vmp.errors import InputError
 
 __all__ = ["Job", "add_parser", "plan", "run", "run_batch", "run_job", "write_table"]
@@ -277,6 +278,7 @@ def run_batch(jobs: Sequence[Job], *, workers: int | None = None, scheduler: str
                 if row["status"].startswith("interrupted"):  # Ctrl-C ended this run
                     return rows, True
         except KeyboardInterrupt:
+            handled_interrupt()
             return rows, True
         return rows, False
     from distributed import as_completed
@@ -295,6 +297,7 @@ def run_batch(jobs: Sequence[Job], *, workers: int | None = None, scheduler: str
                 on_row(rows[i])
         return rows, False
     except KeyboardInterrupt:
+        handled_interrupt()
         client.cancel(futures)
         return rows, True
     finally:
