@@ -159,6 +159,6 @@ def test_a_signal_at_a_random_moment_leaves_a_complete_folder_with_a_loadable_ma
     folder = (tmp_path / "latest").resolve()
     assert not (folder / "INCOMPLETE").exists()
     saved = load_map(folder / "map.vmpmap")
-    mapped = len(np.loadtxt(folder / "trajectory.tum"))
+    mapped = len(np.loadtxt(folder / "trajectory.tum", ndmin=2))  # one scan: one row
     assert 0 < mapped < 2000
     assert len(saved.map) == mapped
