@@ -183,3 +183,4 @@ def test_the_widest_variance_is_the_larger_eigenvalue_of_the_position_block():
         assert math.isclose(widest_variance(cov), want, rel_tol=1e-12, abs_tol=1e-15)
     assert widest_variance(np.diag([0.5, 2.0, 9.0])) == 2.0  # the heading's is not a position's
     assert widest_variance(np.zeros((3, 3))) == 0.0
+    assert widest_variance(np.diag([-1e-18, -2e-18, 0.0])) == 0.0  # rounding's, not a variance

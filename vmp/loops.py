@@ -135,7 +135,7 @@ class LoopSearch:
         out = []
         for mid, dist in zip(ids[far_back][reach], d[reach], strict=True):  # a handful
             cov = drift(int(mid))
-            wxy = min(max(SIGMAS * math.sqrt(max(widest_variance(cov), 0.0)), MIN_WINDOW_XY),
+            wxy = min(max(SIGMAS * math.sqrt(widest_variance(cov)), MIN_WINDOW_XY),
                       MAX_WINDOW_XY)
             if dist <= wxy + REACH:
                 wth = min(max(SIGMAS * math.sqrt(cov[2, 2]), MIN_WINDOW_THETA),

@@ -95,7 +95,7 @@ def pins(reg: Registration) -> bool:
     alone."""
     if reg.by_corners:
         return False
-    return bool(math.sqrt(max(widest_variance(reg.covariance), 0.0)) <= PINNED_SIGMA_XY
+    return bool(math.sqrt(widest_variance(reg.covariance)) <= PINNED_SIGMA_XY
                 and math.sqrt(reg.covariance[2, 2]) <= PINNED_SIGMA_THETA)
 
 

@@ -267,7 +267,7 @@ def _percentile(ordered: list[float], q: float) -> float:
 def _sees_all(cov: FloatArray) -> bool:
     """Whether a registration's covariance pins every direction to :data:`SEES_XY` and
     :data:`SEES_THETA`."""
-    return bool(math.sqrt(max(widest_variance(cov), 0.0)) <= SEES_XY
+    return bool(math.sqrt(widest_variance(cov)) <= SEES_XY
                 and math.sqrt(cov[2, 2]) <= SEES_THETA)
 
 

@@ -99,7 +99,7 @@ def widest_variance(cov: ArrayLike) -> float:
     its 2x2 block, in closed form (LAPACK's call costs more than the arithmetic, and the
     mapper asks several times a scan)."""
     a, b, d = float(cov[0][0]), 0.5 * (float(cov[0][1]) + float(cov[1][0])), float(cov[1][1])
-    return 0.5 * (a + d) + math.hypot(0.5 * (a - d), b)
+    return max(0.5 * (a + d) + math.hypot(0.5 * (a - d), b), 0.0)  # rounding: never below 0
 
 
 def compose_covariance(a: ArrayLike, cov_a: ArrayLike, b: ArrayLike, cov_b: ArrayLike
