@@ -181,7 +181,6 @@ class _Normal:
         size = 3 * (n - 1)
         self.size = size
         cols = (3 * (np.stack([i, j], axis=1) - 1)[:, :, None] + np.arange(3)).reshape(-1, 6)
-        self.cols = cols
         self.free = cols >= 0  # (m, 6): the unknowns an edge's residual moves
         rows = np.broadcast_to(cols[:, :, None], (len(i), 6, 6))
         colb = np.broadcast_to(cols[:, None, :], (len(i), 6, 6))
