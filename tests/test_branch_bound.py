@@ -74,6 +74,24 @@ def test_excluding_the_best_gives_the_best_elsewhere():
     assert rival.score > 0.9 * best.score
 
 
+def test_excluding_several_poses_leaves_each_out():
+    """Three identical rooms in a row: with two of them excluded the search finds the third,
+    with all three nothing scores as well."""
+    room = _room()
+    world = np.vstack([room, room + [20.0, 0.0], room + [40.0, 0.0]])
+    grid = SearchGrid(world, 0.1, 0.1, depth=6, max_window=22.0)
+    truth = np.array([5.0, 4.0, 0.0])
+    live = _seen_from(room, truth)
+    center = truth + [20.0, 0.0, 0.0]  # the middle room: all three in the window
+    known = np.array([truth, truth + [40.0, 0.0, 0.0]])
+    third = search(grid, live, center, 21.0, math.radians(3),
+                   exclude=(known, 0.5, math.radians(5)))
+    assert third.pose[0] == pytest.approx(25.0, abs=0.1)
+    every = np.vstack([known, third.pose])
+    assert search(grid, live, center, 21.0, math.radians(3), min_score=0.9 * third.score,
+                  exclude=(every, 0.5, math.radians(5))) is None
+
+
 def test_a_grid_needs_points():
     with pytest.raises(ValueError, match="at least one"):
         SearchGrid(np.zeros((0, 2)))

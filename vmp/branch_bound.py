@@ -209,8 +209,8 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
     """The best pose of ``points`` within ``window_xy`` (either way, in x and y) and
     ``window_theta`` of ``center``, or None when no pose scores ``min_score``.
 
-    ``exclude`` (a pose, a distance and a turn) leaves out the poses that near it: the best
-    pose elsewhere, to tell a clear peak from one of several alike.
+    ``exclude`` (a pose or several, a distance and a turn) leaves out the poses that near
+    any of them: the best pose elsewhere, to tell a clear peak from one of several alike.
     """
     pts = np.asarray(points, dtype=np.float64)
     res, depth = grid.resolution, grid.depth
@@ -219,11 +219,12 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
     # Each rotation's points, placed at the window's centre: cell indices (R, M).
     cx, cy = grid.clamp(*grid.turned_cells(pts, center[0], center[1], thetas))
     ex_pose, ex_xy, ex_theta = (np.zeros(3), -1.0, -1.0) if exclude is None else exclude
+    ex_pose = np.ascontiguousarray(np.reshape(ex_pose, (-1, 3)), dtype=np.float64)
     score, r, x, y, evaluated = _branch_and_bound(
         grid.stack.reshape(depth + 1, -1), np.ascontiguousarray(cx * grid.shape[1] + cy),
         255.0 * len(pts), steps, depth, min_score, grid.shape[1],
         np.asarray(center, dtype=np.float64), thetas, res,
-        np.asarray(ex_pose, dtype=np.float64), float(ex_xy), float(ex_theta))
+        ex_pose, float(ex_xy), float(ex_theta))
     if r < 0:
         return None
     pose = np.array([center[0] + x * res, center[1] + y * res,
@@ -235,17 +236,20 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
 def _scores(levels, level, flat, rot, ox, oy, n, scale, stride, center, thetas, res, ex_pose,
             ex_xy, ex_theta):  # pragma: no cover - compiled
     """The scores of the first ``n`` candidates (rotation, cell offset) on ``level``; on level
-    0, -1 for those within ``ex_xy`` and ``ex_theta`` of ``ex_pose`` (none when negative):
-    bounds above stay bounds."""
+    0, -1 for those within ``ex_xy`` and ``ex_theta`` of a row of ``ex_pose`` (none when
+    negative): bounds above stay bounds."""
     off = np.empty(n, dtype=np.int64)
     for k in range(n):
         off[k] = ox[k] * stride + oy[k]
     out = block_sums(levels[level], flat, rot[:n], off) / scale
     if level == 0 and ex_xy >= 0.0:
         for k in range(n):
-            near = (math.hypot(center[0] + ox[k] * res - ex_pose[0],
-                               center[1] + oy[k] * res - ex_pose[1]) < ex_xy
-                    and abs((thetas[rot[k]] - ex_pose[2] + math.pi) % (2 * math.pi)
+            near = False
+            for e in range(ex_pose.shape[0]):  # the places already known: a few at most
+                near = near or (
+                    math.hypot(center[0] + ox[k] * res - ex_pose[e, 0],
+                               center[1] + oy[k] * res - ex_pose[e, 1]) < ex_xy
+                    and abs((thetas[rot[k]] - ex_pose[e, 2] + math.pi) % (2 * math.pi)
                             - math.pi) < ex_theta)
             if near:
                 out[k] = -1.0
