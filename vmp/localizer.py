@@ -279,8 +279,7 @@ class Localizer:
         # simulated warehouse) still fits the old place at 0.85: the saved path is searched
         # too, at the last search of the doubt (the real logs doubt their place now and then
         # where the map is thin; searched at every one, tracking slowed by a fifth on ACES).
-        mine = self.places.grid.score(search_points(self._points), trusted.pose)
-        far = self._along_path(trusted.pose, _least_clearly_better(mine), [trusted.pose])
+        far = self._along_path(trusted.pose, _least_clearly_better, [trusted.pose])
         if far is not None:
             self.stats["places found along the path while doubted"] += 1
             self._follow(far.pose, far.score)
@@ -499,35 +498,32 @@ class Localizer:
             return best.alike
         best.checked_at = self._odometry.copy()
         best.alike = False
-        live = search_points(self._points)
-        if len(live) < MIN_POINTS:
-            return False
-        least = _least_as_well(self.places.grid.score(live, best.pose))
         left = [h.pose for h in self.hypotheses if h is best or _left_behind(h, best)]
-        found = self._along_path(best.pose, least, left)
+        found = self._along_path(best.pose, _least_as_well, left)
         if found is not None:
             self._follow(found.pose, found.score)
             best.alike = True
         return best.alike
 
-    def _along_path(self, pose: FloatArray, least: float, known: list[FloatArray]
-                    ) -> Match | None:
+    def _along_path(self, pose: FloatArray, least: Callable[[float], float],
+                    known: list[FloatArray]) -> Match | None:
         """A pose along the saved path, farther than :data:`ALIAS_WINDOW` from ``pose`` and
         at least :data:`ALIAS_APART` from every ``known`` one, where this scan scores
-        ``least`` or more, facing the path as the robot faces it at ``pose`` or the other
-        way along it (the first found); None when there is none."""
-        path = self.places.path
+        ``least(mine)`` or more (``mine``: its score at ``pose``), facing the path as the
+        robot faces it at ``pose`` or the other way along it (the first found); None when
+        there is none."""
         live = search_points(self._points)
-        if len(path) == 0 or len(live) < MIN_POINTS:
+        if len(live) < MIN_POINTS or len(self.places.path) == 0:
             return None
-        grid = self.places.grid
+        path, grid = self.places.path, self.places.grid
+        floor = least(grid.score(live, pose))
         apart = np.hypot(*(path[:, :2] - pose[:2]).T)
         offset = relative(path[np.argmin(apart)], pose)  # as the robot stands to the path
         exclude = (np.array(known).reshape(-1, 3), *ALIAS_APART)
         for sample in path[apart > ALIAS_WINDOW]:  # a small search a metre, most pruned
             for turn in (0.0, math.pi):  # along the path either way
                 centre = compose(sample + (0.0, 0.0, turn), offset)
-                found = search(grid, live, centre, PATH_WINDOW_XY, PATH_WINDOW_THETA, least,
+                found = search(grid, live, centre, PATH_WINDOW_XY, PATH_WINDOW_THETA, floor,
                                exclude=exclude)
                 if found is not None:
                     return found
