@@ -151,8 +151,7 @@ def simulated(names: list[str], runs: int) -> list[dict]:
         results = [sim_run(name, smap, 100 + i) for i in range(runs)]
         both = [r["start"] for r in results] + [r["kidnap"] for r in results]
         ok = [k for k in both if k is not None and k <= WITHIN]
-        told = [t for r in results for t in r["told"][:1]] + \
-            [t for r in results for t in r["told"][1:]]
+        told = [r["told"][0] for r in results] + [r["told"][1] for r in results]  # as both
         told_ok = [k for k, t in zip(both, told, strict=True)
                    if t and k is not None and k <= WITHIN]
         took = [k for k in both if k is not None]

@@ -426,9 +426,7 @@ class Localizer:
         for h in self.hypotheses:
             if h is trusted or h.misses or h.fits < MIN_FITS:
                 continue
-            n = min(len(h.scores), len(trusted.scores))
-            if _clearly_better(np.mean(list(h.scores)[-n:]),
-                               np.mean(list(trusted.scores)[-n:])):
+            if _clearly_better(*_over_common_scans(h, trusted)):
                 return True
         return False
 
@@ -568,8 +566,7 @@ def _rival(h: Hypothesis, best: Hypothesis) -> bool:
     followed (one proposed just now blocks only when it already explains more)."""
     if h.fits < MIN_FITS:
         return h.score >= best.score
-    n = min(len(h.scores), len(best.scores))
-    return _as_well(np.mean(list(h.scores)[-n:]), np.mean(list(best.scores)[-n:]))
+    return _as_well(*_over_common_scans(h, best))
 
 
 def _left_behind(h: Hypothesis, best: Hypothesis) -> bool:
@@ -578,9 +575,14 @@ def _left_behind(h: Hypothesis, best: Hypothesis) -> bool:
     times the best's share plus :data:`LEFT_MARGIN`."""
     if h.fits < MIN_FITS:
         return False
-    n = min(len(h.scores), len(best.scores))
-    mine, theirs = np.mean(list(h.scores)[-n:]), np.mean(list(best.scores)[-n:])
+    mine, theirs = _over_common_scans(h, best)
     return 1.0 - mine >= RIVAL_FACTOR * (1.0 - theirs) + LEFT_MARGIN
+
+
+def _over_common_scans(h: Hypothesis, other: Hypothesis) -> tuple[float, float]:
+    """The mean scores of ``h`` and ``other`` over the last scans both were followed."""
+    n = min(len(h.scores), len(other.scores))
+    return float(np.mean(list(h.scores)[-n:])), float(np.mean(list(other.scores)[-n:]))
 
 
 def _as_well(score: float, best: float) -> bool:
