@@ -25,7 +25,8 @@ import numpy as np
 from vmp.jit import kernel
 from vmp.types import FloatArray
 
-__all__ = ["Match", "SearchGrid", "likelihood_grid", "search", "search_points"]
+__all__ = ["Match", "SearchGrid", "likelihood_grid", "mean_likelihood", "search",
+           "search_points"]
 
 
 SEARCH_POINTS = 100  # live points searched with (evenly thinned) ...
@@ -163,9 +164,44 @@ class SearchGrid:
         return np.clip(cx, lo, hi[0]), np.clip(cy, lo, hi[1])
 
     def score(self, points: FloatArray, pose: FloatArray) -> float:
-        """Mean likelihood of ``points`` at ``pose`` (level 0)."""
-        cx, cy = self.clamp(*self.cells(np.asarray(points, dtype=np.float64), pose))
-        return float(self.levels[0][cx, cy].mean()) / 255.0
+        """Mean likelihood of ``points`` at ``pose`` (level 0), cells clamped as
+        :meth:`clamp` does."""
+        lo, hi = self.max_steps, np.array(self.shape) - 1 - self.max_steps - (1 << self.depth)
+        return mean_likelihood(self.levels[0], self.origin, self.resolution, points, pose,
+                               (lo, lo), (int(hi[0]), int(hi[1])))
+
+
+def mean_likelihood(field: np.ndarray, origin: FloatArray, resolution: float,
+                    points: FloatArray, pose: FloatArray, lo: tuple[int, int],
+                    hi: tuple[int, int]) -> float:
+    """Mean likelihood (0 to 1) of ``points`` ``(M, 2)`` (their frame) placed at ``pose`` in a
+    byte grid ``field`` whose cell (0, 0) is centred at ``origin``, each cell index clamped
+    to ``lo``..``hi``; 0 for no points. Once per scan and place followed: in NumPy, a dozen
+    array operations of a few microseconds each (70 microseconds a scan, 6 % of a tracked
+    scan on ACES; docs/benchmarks.md)."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    if len(pts) == 0:
+        return 0.0
+    x, y, theta = (float(v) for v in pose)
+    total = _likelihood_sum(field, float(origin[0]), float(origin[1]), float(resolution),
+                            pts, x, y, math.cos(theta), math.sin(theta), lo[0], lo[1], hi[0],
+                            hi[1])
+    return total / len(pts) / 255.0
+
+
+@kernel
+def _likelihood_sum(field, ox, oy, res, pts, x, y, c, s, lo_x, lo_y, hi_x, hi_y
+                    ):  # pragma: no cover - compiled
+    """The sum of ``field`` over the clamped cells of ``pts`` placed at (x, y), turned by
+    the angle of cosine ``c`` and sine ``s``."""
+    total = 0
+    for k in range(pts.shape[0]):
+        px = x + c * pts[k, 0] - s * pts[k, 1]
+        py = y + s * pts[k, 0] + c * pts[k, 1]
+        cx = min(max(int(np.rint((px - ox) / res)), lo_x), hi_x)
+        cy = min(max(int(np.rint((py - oy) / res)), lo_y), hi_y)
+        total += field[cx, cy]
+    return float(total)
 
 
 @kernel
@@ -216,12 +252,18 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
     res, depth = grid.resolution, grid.depth
     thetas = center[2] + _angles(pts, res, window_theta)
     steps = min(math.ceil(window_xy / res - 1e-9), grid.max_steps)
-    # Each rotation's points, placed at the window's centre: cell indices (R, M).
-    cx, cy = grid.clamp(*grid.turned_cells(pts, center[0], center[1], thetas))
+    # Each rotation's points, placed at the window's centre: flat cell indices (R, M), as
+    # grid.clamp(*grid.turned_cells(...)) has them (compiled: in NumPy, 40 % of a search along
+    # a saved path, hundreds of small searches; docs/benchmarks.md).
+    lo, hi = grid.max_steps, np.array(grid.shape) - 1 - grid.max_steps - (1 << depth)
+    flat = _flat_cells(pts, float(center[0]), float(center[1]),
+                       np.array([math.cos(t) for t in thetas]),
+                       np.array([math.sin(t) for t in thetas]), float(grid.origin[0]),
+                       float(grid.origin[1]), res, lo, int(hi[0]), int(hi[1]), grid.shape[1])
     ex_pose, ex_xy, ex_theta = (np.zeros(3), -1.0, -1.0) if exclude is None else exclude
     ex_pose = np.ascontiguousarray(np.reshape(ex_pose, (-1, 3)), dtype=np.float64)
     score, r, x, y, evaluated = _branch_and_bound(
-        grid.stack.reshape(depth + 1, -1), np.ascontiguousarray(cx * grid.shape[1] + cy),
+        grid.stack.reshape(depth + 1, -1), flat,
         255.0 * len(pts), steps, depth, min_score, grid.shape[1],
         np.asarray(center, dtype=np.float64), thetas, res,
         ex_pose, float(ex_xy), float(ex_theta))
@@ -230,6 +272,22 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
     pose = np.array([center[0] + x * res, center[1] + y * res,
                      (thetas[r] + math.pi) % (2 * math.pi) - math.pi])
     return Match(pose, float(score), int(evaluated))
+
+
+@kernel
+def _flat_cells(pts, x, y, cos, sin, ox, oy, res, lo, hi_x, hi_y, stride
+                ):  # pragma: no cover - compiled
+    """Flat indices ``(R, M)`` of the cells of ``pts`` placed at (x, y) and turned by each
+    rotation of cosine ``cos[r]`` and sine ``sin[r]``, clamped as :meth:`SearchGrid.clamp`
+    clamps them."""
+    out = np.empty((cos.shape[0], pts.shape[0]), dtype=np.int64)
+    for r in range(cos.shape[0]):
+        c, s = cos[r], sin[r]
+        for k in range(pts.shape[0]):
+            cx = int(np.rint((x + c * pts[k, 0] - s * pts[k, 1] - ox) / res))
+            cy = int(np.rint((y + s * pts[k, 0] + c * pts[k, 1] - oy) / res))
+            out[r, k] = min(max(cx, lo), hi_x) * stride + min(max(cy, lo), hi_y)
+    return out
 
 
 @kernel

@@ -19,14 +19,14 @@ from dataclasses import replace
 import numpy as np
 
 from milestones.manager import MilestoneManager
-from vmp.branch_bound import SearchGrid, likelihood_grid
+from vmp.branch_bound import SearchGrid, likelihood_grid, mean_likelihood
 from vmp.config import RegistrationConfig
 from vmp.registration import Reference, Registration, explained, fits, last_gate
 from vmp.submaps import voxel_thin
 from vmp.types import FloatArray, inverse, transform_points
 from vmp.vector_map import VectorMap
 
-__all__ = ["Place", "Places", "samples_along"]
+__all__ = ["Place", "Places", "registration_fits", "samples_along"]
 
 GRID_RADIUS = 20.0  # submap points farther than this from the milestone are left out (m)
 RESOLUTION = 0.1  # search grid cell (m)
@@ -59,23 +59,14 @@ class Place:
         if self._field is None:
             self._field = likelihood_grid(self.points, RESOLUTION, SIGMA, 1)
         origin, field = self._field
-        if len(points) == 0:
-            return 0.0
-        cells = np.rint((transform_points(pose, points) - origin) / RESOLUTION).astype(np.int64)
-        cells = np.clip(cells, 0, np.array(field.shape) - 1)  # the border cells are zeros
-        return float(field[cells[:, 0], cells[:, 1]].mean()) / 255.0
+        # Clamped to the border cells, zeros.
+        return mean_likelihood(field, origin, RESOLUTION, points, pose, (0, 0),
+                               (field.shape[0] - 1, field.shape[1] - 1))
 
     def fits(self, reg: Registration, points: FloatArray, config: RegistrationConfig) -> bool:
-        """Whether a registration of ``points`` against this submap fits: closely, and with
-        most of the points near a map point, on a clear line or not. (ICP matches only the
-        points whose partner lies on a clear line, and a map assembled from many scans has
-        thick walls: in the Intel part's half map a quarter of the points lie on one, and
-        scans placed to a centimetre found partners for a fifth of their points, so that
-        tracking never corrected the pose.)"""
-        if not np.isfinite(reg.rms):
-            return False
-        share = explained(self.reference, points, reg.pose, last_gate(reg.rms))
-        return fits(replace(reg, inliers=share), config)
+        """Whether a registration of ``points`` against this submap fits
+        (:func:`registration_fits`)."""
+        return registration_fits(self.reference, reg, points, config)
 
     @property
     def reference(self) -> Reference:
@@ -106,6 +97,7 @@ class Places:
         self.path = samples_along(np.asarray(trajectory, dtype=np.float64), PATH_STEP)
         self._cache: OrderedDict[int, Place | None] = OrderedDict()
         self._grid: SearchGrid | None = None
+        self._reference: Reference | None = None
 
     def __len__(self) -> int:
         return len(self.milestones)
@@ -134,6 +126,28 @@ class Places:
             self._grid = SearchGrid(self.points, RESOLUTION, SIGMA, DEPTH, MAX_WINDOW)
         return self._grid
 
+    @property
+    def reference(self) -> Reference:
+        """One registration reference of the whole map, in the map frame (built on first
+        use): what a place followed is tracked against. Tracked against the submap of the
+        milestone nearest, a place changed submaps every few metres and the places searched
+        meanwhile pushed them out of the cache: rebuilding their references was 30 % of
+        tracking fr079's second half (docs/benchmarks.md). Its ICP looks neighbours up in
+        cells, whatever the map's size."""
+        if self._reference is None:
+            self._reference = Reference(self.points)
+        return self._reference
+
+    def score(self, points: FloatArray, pose: FloatArray) -> float:
+        """Mean likelihood of ``points`` (their frame) placed at ``pose`` in the whole map:
+        the branch-and-bound search's score."""
+        return self.grid.score(points, pose)
+
+    def fits(self, reg: Registration, points: FloatArray, config: RegistrationConfig) -> bool:
+        """Whether a registration of ``points`` against the whole map fits
+        (:func:`registration_fits`)."""
+        return registration_fits(self.reference, reg, points, config)
+
     def nearest(self, pose: FloatArray) -> Place | None:
         """The submap of the milestone nearest ``pose`` (a turn counts as
         :data:`TURN_COST` metres a radian) that holds enough points."""
@@ -147,6 +161,20 @@ class Places:
             if place is not None:
                 return place
         return None
+
+
+def registration_fits(reference: Reference, reg: Registration, points: FloatArray,
+                      config: RegistrationConfig) -> bool:
+    """Whether a registration of ``points`` against ``reference`` fits: closely, and with
+    most of the points near a map point, on a clear line or not. (ICP matches only the points
+    whose partner lies on a clear line, and a map assembled from many scans has thick walls:
+    in the Intel part's half map a quarter of the points lie on one, and scans placed to a
+    centimetre found partners for a fifth of their points, so that tracking never corrected
+    the pose.)"""
+    if not np.isfinite(reg.rms):
+        return False
+    share = explained(reference, points, reg.pose, last_gate(reg.rms))
+    return fits(replace(reg, inliers=share), config)
 
 
 def samples_along(trajectory: FloatArray, step: float) -> FloatArray:
