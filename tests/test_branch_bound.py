@@ -264,3 +264,19 @@ def test_the_compiled_search_is_the_numpy_search():
             if got is not None:
                 np.testing.assert_array_equal(got.pose, want.pose)
                 assert got.score == want.score and got.evaluated == want.evaluated
+
+
+def test_the_compiled_score_is_the_mean_over_the_clamped_cells():
+    grid = SearchGrid(_room(), 0.1, 0.1, depth=5, max_window=4.0)
+    rng = np.random.default_rng(12)
+    lo, hi = grid.max_steps, np.array(grid.shape) - 1 - grid.max_steps - (1 << grid.depth)
+    for _ in range(50):
+        pts = rng.uniform(-30, 30, (int(rng.integers(1, 200)), 2))  # some far off the grid
+        pose = np.array([rng.uniform(-5, 15), rng.uniform(-5, 12), rng.uniform(-4, 4)])
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        cx = np.rint((pose[0] + c * pts[:, 0] - s * pts[:, 1] - grid.origin[0]) / 0.1)
+        cy = np.rint((pose[1] + s * pts[:, 0] + c * pts[:, 1] - grid.origin[1]) / 0.1)
+        cx = np.clip(cx.astype(np.int64), lo, hi[0])
+        cy = np.clip(cy.astype(np.int64), lo, hi[1])
+        assert grid.score(pts, pose) == grid.levels[0][cx, cy].mean() / 255.0
+    assert grid.score(np.zeros((0, 2)), np.zeros(3)) == 0.0

@@ -13,13 +13,14 @@ import pytest
 from conftest import mapped
 
 import vmp.localizer as localizer_module
+import vmp.places as places_module
 from drivers import open_source
 from vmp.config import MappingConfig
 from vmp.fusion import PoseFilter
 from vmp.localization import LocalizationRun
 from vmp.localizer import MIN_FITS, Hypothesis, Localizer, State
 from vmp.mapfile import MapData
-from vmp.places import Place
+from vmp.places import Place, Places
 from vmp.registration import fits, register
 from vmp.source import FrameList, Reference
 
@@ -57,6 +58,24 @@ def test_a_scan_placed_well_in_a_thick_walled_map_fits_and_one_placed_wrong_does
     assert place.fits(reg, scan, config)
     elsewhere = replace(reg, pose=reg.pose + [1.0, 0.7, 0.0])
     assert not place.fits(elsewhere, scan, config)
+
+
+def test_a_submap_pushed_out_of_the_cache_keeps_what_tracking_built(monkeypatch):
+    """The searches look at many submaps; the one tracked keeps its registration reference
+    and its scoring field when they push it out of the cache, and scores as before."""
+    monkeypatch.setattr(places_module, "CACHED", 2)
+    r = mapped("lab")
+    places = Places(r.pipeline.map, r.pipeline.milestones, r.trajectory)
+    first, *others = [int(m) for m in r.pipeline.milestones.ids[:4]]
+    tracked = places.place(first)
+    scan = tracked.points[::7]
+    reference, score = tracked.reference, tracked.score(scan, np.zeros(3))
+    for milestone in others:  # a search passes by
+        places.place(milestone)
+    again = places.place(first)
+    assert again is not tracked  # built anew, the submap itself dropped ...
+    assert again.reference is reference  # ... but not the reference
+    assert again.tracking[1] is not None and again.score(scan, np.zeros(3)) == score
 
 
 def _hypothesis(score: float, scans: int, declared: bool = False) -> Hypothesis:

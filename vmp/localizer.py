@@ -50,7 +50,7 @@ the robot is lost (and then localized, or ambiguous among bays alike, as above).
 Tracking a saved map differs from mapping in two ways that matter. The map is assembled from
 many scans, its walls bands a few centimetres thick, where ICP matches only points whose
 partner lies on a clear line: a registration fits when most of the scan lies near a map point
-(:func:`vmp.places.registration_fits`). And the hypotheses move by scan odometry, as the mapper's
+(:meth:`vmp.places.Place.fits`). And the hypotheses move by scan odometry, as the mapper's
 filter does: a registration against such a map places one scan to a centimetre or two, and
 scan after scan those errors do not average out unless the motion between them is known
 better still. Once trusted, a place is registered against the map every decimetre or five
@@ -115,8 +115,8 @@ RIVAL_MARGIN = 0.02
 # corridor's right place in a bent map: 0.021 unexplained against its twin's 0.001, to stay
 # in; the warehouse's other loading dock: 0.04 against 0.002, to be left out).
 LEFT_MARGIN = 0.03
-SWITCH_PLACE = 3.0  # a hypothesis this far from its submap's milestone takes the nearest (m)
 REACH = 20.0  # live points scored: within this range (the submaps' reach, m)
+SWITCH_PLACE = 3.0  # a hypothesis this far from its submap's milestone takes the nearest (m)
 # Before a place is declared, the poses this far around it (m, rad) are searched for one that
 # explains the scan about as well (a pilaster 5 m along a corridor, a rack bay 2.5 m along an
 # aisle), leaving out those within ALIAS_APART of it.
@@ -154,8 +154,8 @@ class Hypothesis:
     declared: bool = False  # the localizer has declared it once (it may dead-reckon)
     scores: deque[float] = field(default_factory=lambda: deque(maxlen=WINDOW))  # 0: a miss
     fitted: deque[float] = field(default_factory=lambda: deque(maxlen=2 * WINDOW))
+    place: Place | None = None  # the submap it is registered against
     registered_at: FloatArray | None = None  # its pose at the last registration
-    place: Place | None = None  # the submap it is scored in
     checked_at: FloatArray | None = None  # odometry pose when the path was searched for it
     alike: bool = False  # whether that search found a look-alike
     # How well the place explained the scans when it was declared (its mean score then), and
@@ -298,19 +298,20 @@ class Localizer:
         place = h.place
         if place is None or math.hypot(*(place.pose[:2] - h.pose[:2])) > SWITCH_PLACE:
             place = h.place = self.places.nearest(h.pose)
+            h.registered_at = None
         if place is None or len(points) < MIN_POINTS:
             h.misses += 1
             h.streak = 0
             h.scores.append(0.0)
             return
-        # The points within the submap's reach: beyond it nothing can score.
+        # The points within the submap's reach: beyond it nothing can match.
         near = points[np.hypot(points[:, 0], points[:, 1]) <= REACH]
         if len(near) < MIN_POINTS:
             h.misses += 1
             h.streak = 0
             h.scores.append(0.0)
             return
-        places = self.places
+        predicted = relative(place.pose, h.pose)
         update = False
         # A place trusted is registered every TRACK_EVERY; one followed, whenever the robot
         # does not stand still.
@@ -323,16 +324,14 @@ class Localizer:
             # and corners along an aisle, matched those band points point to point on 10,137
             # of ACES's 11,567 registrations; the direction lines leave free stays the
             # filter's, carried by scan odometry (docs/benchmarks.md, 2026-12-02).
-            reg = register(places.reference, near, h.pose, corners=False)
-            z, R = reg.pose, reg.covariance
-            update = (places.fits(reg, near, self.config.registration)
+            reg = register(place.reference, near, predicted, corners=False)
+            z = compose(place.pose, reg.pose)
+            R = rotate_covariance(reg.covariance, place.pose[2])
+            update = (place.fits(reg, near, self.config.registration)
                       and h.filter.mahalanobis2(z, R) <= CHI2_3DOF_99)
-        # Scored where the scan lands (registered, or predicted when ICP did not fit, part
-        # of the view may lie outside the map, a room it never saw, or was not run) in the
-        # submap, as the search scores it: scored in the whole map, points beyond the
-        # submap's reach scored too and places about as good as the best became rivals
-        # (the Intel part's second half: 65.9 % of the scans localized against 72.9 %).
-        score = place.score(near, relative(place.pose, z if update else h.pose))
+        # Scored where the scan lands: registered, or predicted when ICP did not fit (part
+        # of the view may lie outside the map, a room it never saw) or was not run.
+        score = place.score(near, reg.pose if update else predicted)
         if score < KEEP_RATIO * h.usual:
             h.misses += 1
             h.streak = 0

@@ -26,7 +26,7 @@ from vmp.submaps import voxel_thin
 from vmp.types import FloatArray, inverse, transform_points
 from vmp.vector_map import VectorMap
 
-__all__ = ["Place", "Places", "registration_fits", "samples_along"]
+__all__ = ["Place", "Places", "samples_along"]
 
 GRID_RADIUS = 20.0  # submap points farther than this from the milestone are left out (m)
 RESOLUTION = 0.1  # search grid cell (m)
@@ -34,7 +34,15 @@ SIGMA = 0.1  # likelihood fall-off of the search grid (m)
 DEPTH = 5  # levels of block maxima
 VOXEL = 0.05  # one map point kept per cell of this size (m); 0.1 did worse on Intel
 MAX_WINDOW = 6.0  # the widest search window either way (m): the localizer's alias check
-CACHED = 32  # submaps kept (a search grid of one is a few MB)
+CACHED = 32  # submaps kept (a search grid of one is a few MB) ...
+# ... and what tracking built of more (:attr:`Place.tracking`; a registration reference of
+# 13,000 points is about 0.6 MB). Kept apart: the searches while the robot is lost or doubted
+# look at dozens of submaps and pushed those tracked out of the cache, and rebuilding their
+# references was 30 % of tracking fr079's second half (docs/benchmarks.md).
+TRACKING_CACHED = 128
+
+# A submap's registration reference and its likelihood field (origin, grid), once built.
+Tracking = tuple[Reference | None, tuple[FloatArray, np.ndarray] | None]
 PATH_STEP = 1.0  # the saved path is sampled every this far (m) for look-alikes of a place
 TURN_COST = 1.0  # choosing the nearest milestone, a radian of heading counts as this (m)
 
@@ -42,13 +50,14 @@ TURN_COST = 1.0  # choosing the nearest milestone, a radian of heading counts as
 class Place:
     """One milestone's submap: its points, a registration reference and a search grid."""
 
-    def __init__(self, milestone: int, pose: FloatArray, points: FloatArray) -> None:
+    def __init__(self, milestone: int, pose: FloatArray, points: FloatArray,
+                 tracking: Tracking = (None, None)) -> None:
+        """``tracking``: what :attr:`tracking` returned for these points, when built before."""
         self.milestone = milestone
         self.pose = pose  # the milestone in the map frame
         self.points = points  # the submap in the milestone's frame
-        self._reference: Reference | None = None
+        self._reference, self._field = tracking
         self._grid: SearchGrid | None = None
-        self._field: tuple[FloatArray, np.ndarray] | None = None
 
     def score(self, points: FloatArray, pose: FloatArray) -> float:
         """Mean likelihood of ``points`` (their frame) placed at ``pose`` in the submap: the
@@ -64,9 +73,16 @@ class Place:
                                (field.shape[0] - 1, field.shape[1] - 1))
 
     def fits(self, reg: Registration, points: FloatArray, config: RegistrationConfig) -> bool:
-        """Whether a registration of ``points`` against this submap fits
-        (:func:`registration_fits`)."""
-        return registration_fits(self.reference, reg, points, config)
+        """Whether a registration of ``points`` against this submap fits: closely, and with
+        most of the points near a map point, on a clear line or not. (ICP matches only the
+        points whose partner lies on a clear line, and a map assembled from many scans has
+        thick walls: in the Intel part's half map a quarter of the points lie on one, and
+        scans placed to a centimetre found partners for a fifth of their points, so that
+        tracking never corrected the pose.)"""
+        if not np.isfinite(reg.rms):
+            return False
+        share = explained(self.reference, points, reg.pose, last_gate(reg.rms))
+        return fits(replace(reg, inliers=share), config)
 
     @property
     def reference(self) -> Reference:
@@ -76,6 +92,12 @@ class Place:
         if self._reference is None:
             self._reference = Reference(self.points)
         return self._reference
+
+    @property
+    def tracking(self) -> Tracking:
+        """What tracking against it has built so far: its registration reference and the
+        field it is scored in without a search grid (None where not built)."""
+        return self._reference, self._field
 
     @property
     def grid(self) -> SearchGrid:
@@ -96,8 +118,8 @@ class Places:
         self.points = voxel_thin(vmap.world_points(trajectory), VOXEL)
         self.path = samples_along(np.asarray(trajectory, dtype=np.float64), PATH_STEP)
         self._cache: OrderedDict[int, Place | None] = OrderedDict()
+        self._tracking: OrderedDict[int, Tracking] = OrderedDict()
         self._grid: SearchGrid | None = None
-        self._reference: Reference | None = None
 
     def __len__(self) -> int:
         return len(self.milestones)
@@ -111,10 +133,15 @@ class Places:
         near = np.hypot(self.points[:, 0] - pose[0], self.points[:, 1] - pose[1]) <= GRID_RADIUS
         place = None
         if near.sum() >= 20:
-            place = Place(milestone, pose, transform_points(inverse(pose), self.points[near]))
+            place = Place(milestone, pose, transform_points(inverse(pose), self.points[near]),
+                          self._tracking.pop(milestone, (None, None)))
         self._cache[milestone] = place
         if len(self._cache) > CACHED:
-            self._cache.popitem(last=False)
+            _, dropped = self._cache.popitem(last=False)
+            if dropped is not None and any(built is not None for built in dropped.tracking):
+                self._tracking[dropped.milestone] = dropped.tracking
+                if len(self._tracking) > TRACKING_CACHED:
+                    self._tracking.popitem(last=False)
         return place
 
     @property
@@ -125,28 +152,6 @@ class Places:
         if self._grid is None:
             self._grid = SearchGrid(self.points, RESOLUTION, SIGMA, DEPTH, MAX_WINDOW)
         return self._grid
-
-    @property
-    def reference(self) -> Reference:
-        """One registration reference of the whole map, in the map frame (built on first
-        use): what a place followed is tracked against. Tracked against the submap of the
-        milestone nearest, a place changed submaps every few metres and the places searched
-        meanwhile pushed them out of the cache: rebuilding their references was 30 % of
-        tracking fr079's second half (docs/benchmarks.md). Its ICP looks neighbours up in
-        cells, whatever the map's size."""
-        if self._reference is None:
-            self._reference = Reference(self.points)
-        return self._reference
-
-    def score(self, points: FloatArray, pose: FloatArray) -> float:
-        """Mean likelihood of ``points`` (their frame) placed at ``pose`` in the whole map:
-        the branch-and-bound search's score."""
-        return self.grid.score(points, pose)
-
-    def fits(self, reg: Registration, points: FloatArray, config: RegistrationConfig) -> bool:
-        """Whether a registration of ``points`` against the whole map fits
-        (:func:`registration_fits`)."""
-        return registration_fits(self.reference, reg, points, config)
 
     def nearest(self, pose: FloatArray) -> Place | None:
         """The submap of the milestone nearest ``pose`` (a turn counts as
@@ -161,20 +166,6 @@ class Places:
             if place is not None:
                 return place
         return None
-
-
-def registration_fits(reference: Reference, reg: Registration, points: FloatArray,
-                      config: RegistrationConfig) -> bool:
-    """Whether a registration of ``points`` against ``reference`` fits: closely, and with
-    most of the points near a map point, on a clear line or not. (ICP matches only the points
-    whose partner lies on a clear line, and a map assembled from many scans has thick walls:
-    in the Intel part's half map a quarter of the points lie on one, and scans placed to a
-    centimetre found partners for a fifth of their points, so that tracking never corrected
-    the pose.)"""
-    if not np.isfinite(reg.rms):
-        return False
-    share = explained(reference, points, reg.pose, last_gate(reg.rms))
-    return fits(replace(reg, inliers=share), config)
 
 
 def samples_along(trajectory: FloatArray, step: float) -> FloatArray:
