@@ -140,11 +140,6 @@ class SearchGrid:
     def shape(self) -> tuple[int, int]:
         return self.levels[0].shape  # type: ignore[return-value]
 
-    def cells(self, points: FloatArray, pose: FloatArray) -> tuple[np.ndarray, np.ndarray]:
-        """Cell indices of ``points`` (their frame) placed at ``pose``."""
-        cx, cy = self.turned_cells(points, pose[0], pose[1], (pose[2],))
-        return cx[0], cy[0]
-
     def turned_cells(self, points: FloatArray, x: float, y: float, thetas
                      ) -> tuple[np.ndarray, np.ndarray]:
         """Cell indices ``(R, M)`` of ``points`` ``(M, 2)`` placed at (x, y) turned by each of
@@ -160,15 +155,22 @@ class SearchGrid:
         """Cells moved into the padding where they lie beyond it: under any offset of a
         window up to ``max_window`` they then index the grid and read zeros (the likelihood is
         zero there too), so the search needs no bounds checks."""
-        lo, hi = self.max_steps, np.array(self.shape) - 1 - self.max_steps - (1 << self.depth)
-        return np.clip(cx, lo, hi[0]), np.clip(cy, lo, hi[1])
+        lo, hi_x, hi_y = self.bounds
+        return np.clip(cx, lo, hi_x), np.clip(cy, lo, hi_y)
+
+    @property
+    def bounds(self) -> tuple[int, int, int]:
+        """The least cell index :meth:`clamp` leaves (either axis) and the greatest in x
+        and in y."""
+        hi = np.array(self.shape) - 1 - self.max_steps - (1 << self.depth)
+        return self.max_steps, int(hi[0]), int(hi[1])
 
     def score(self, points: FloatArray, pose: FloatArray) -> float:
         """Mean likelihood of ``points`` at ``pose`` (level 0), cells clamped as
         :meth:`clamp` does."""
-        lo, hi = self.max_steps, np.array(self.shape) - 1 - self.max_steps - (1 << self.depth)
+        lo, hi_x, hi_y = self.bounds
         return mean_likelihood(self.levels[0], self.origin, self.resolution, points, pose,
-                               (lo, lo), (int(hi[0]), int(hi[1])))
+                               (lo, lo), (hi_x, hi_y))
 
 
 def mean_likelihood(field: np.ndarray, origin: FloatArray, resolution: float,
@@ -177,8 +179,8 @@ def mean_likelihood(field: np.ndarray, origin: FloatArray, resolution: float,
     """Mean likelihood (0 to 1) of ``points`` ``(M, 2)`` (their frame) placed at ``pose`` in a
     byte grid ``field`` whose cell (0, 0) is centred at ``origin``, each cell index clamped
     to ``lo``..``hi``; 0 for no points. Once per scan and place followed: in NumPy, a dozen
-    array operations of a few microseconds each (70 microseconds a scan, 6 % of a tracked
-    scan on ACES; docs/benchmarks.md)."""
+    array operations of a few microseconds each on 180 points (29 microseconds a call,
+    compiled 5.5; docs/benchmarks.md, 2026-12-04)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     if len(pts) == 0:
         return 0.0
@@ -253,13 +255,12 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
     thetas = center[2] + _angles(pts, res, window_theta)
     steps = min(math.ceil(window_xy / res - 1e-9), grid.max_steps)
     # Each rotation's points, placed at the window's centre: flat cell indices (R, M), as
-    # grid.clamp(*grid.turned_cells(...)) has them (compiled: in NumPy, 40 % of a search along
-    # a saved path, hundreds of small searches; docs/benchmarks.md).
-    lo, hi = grid.max_steps, np.array(grid.shape) - 1 - grid.max_steps - (1 << depth)
+    # grid.clamp(*grid.turned_cells(...)) has them (compiled: in NumPy, 0.17 s of the 0.21 s
+    # the small searches along the saved path took in ACES's tracked scans; 2026-12-04).
     flat = _flat_cells(pts, float(center[0]), float(center[1]),
                        np.array([math.cos(t) for t in thetas]),
                        np.array([math.sin(t) for t in thetas]), float(grid.origin[0]),
-                       float(grid.origin[1]), res, lo, int(hi[0]), int(hi[1]), grid.shape[1])
+                       float(grid.origin[1]), res, *grid.bounds, grid.shape[1])
     ex_pose, ex_xy, ex_theta = (np.zeros(3), -1.0, -1.0) if exclude is None else exclude
     ex_pose = np.ascontiguousarray(np.reshape(ex_pose, (-1, 3)), dtype=np.float64)
     score, r, x, y, evaluated = _branch_and_bound(
