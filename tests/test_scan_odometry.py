@@ -191,3 +191,27 @@ def test_the_noise_percentiles_are_numpys_to_the_last_bit():
         ordered = sorted(values.tolist())
         assert _percentile(ordered, 0.5) == median
         assert _percentile(ordered, 0.95) == tail
+
+
+def test_the_learned_noise_follows_the_recent_disagreements_percentiles():
+    """Kept sorted as values come and go, the window's median and 95th percentile are
+    numpy's over its last NOISE_MEMORY values, scaled and bounded as documented."""
+    from vmp.scan_odometry import CHI2_3DOF_95, CHI2_3DOF_MEDIAN, MAX_NOISE_SCALE, NOISE_MEMORY
+
+    odo = odometry()
+    rng = np.random.default_rng(5)
+    seen: list[float] = []
+    for k in range(3 * NOISE_MEMORY):
+        d2 = float(rng.chisquare(3) * (8.0 if k > NOISE_MEMORY else 1.0))
+        if k % 37 == 0:
+            d2 = seen[-1] / odo.noise_scale if seen else d2  # repeated values come and go too
+        seen.append(d2 * odo.noise_scale)
+        odo._learn_noise(d2)
+        window = seen[-NOISE_MEMORY:]
+        if len(window) >= NOISE_MEMORY // 4:
+            scale = min(max(np.percentile(window, 50) / CHI2_3DOF_MEDIAN, 1.0),
+                        MAX_NOISE_SCALE)
+            assert odo.noise_scale == scale
+            assert odo.tail_scale == min(max(np.percentile(window, 95) / CHI2_3DOF_95, scale),
+                                         MAX_NOISE_SCALE)
+    assert odo.noise_scale > 2.0  # the noisier wheels were learned
