@@ -198,12 +198,16 @@ def _likelihood_sum(field, ox, oy, res, pts, x, y, c, s, lo_x, lo_y, hi_x, hi_y
     the angle of cosine ``c`` and sine ``s``."""
     total = 0
     for k in range(pts.shape[0]):
-        px = x + c * pts[k, 0] - s * pts[k, 1]
-        py = y + s * pts[k, 0] + c * pts[k, 1]
-        cx = min(max(int(np.rint((px - ox) / res)), lo_x), hi_x)
-        cy = min(max(int(np.rint((py - oy) / res)), lo_y), hi_y)
-        total += field[cx, cy]
+        total += field[_cell(x + c * pts[k, 0] - s * pts[k, 1], ox, res, lo_x, hi_x),
+                       _cell(y + s * pts[k, 0] + c * pts[k, 1], oy, res, lo_y, hi_y)]
     return float(total)
+
+
+@kernel
+def _cell(v, origin, res, lo, hi):  # pragma: no cover - compiled
+    """The index of the cell holding coordinate ``v`` (cell 0 centred at ``origin``),
+    clamped to ``lo``..``hi``."""
+    return min(max(int(np.rint((v - origin) / res)), lo), hi)
 
 
 @kernel
@@ -285,9 +289,8 @@ def _flat_cells(pts, x, y, cos, sin, ox, oy, res, lo, hi_x, hi_y, stride
     for r in range(cos.shape[0]):
         c, s = cos[r], sin[r]
         for k in range(pts.shape[0]):
-            cx = int(np.rint((x + c * pts[k, 0] - s * pts[k, 1] - ox) / res))
-            cy = int(np.rint((y + s * pts[k, 0] + c * pts[k, 1] - oy) / res))
-            out[r, k] = min(max(cx, lo), hi_x) * stride + min(max(cy, lo), hi_y)
+            out[r, k] = (_cell(x + c * pts[k, 0] - s * pts[k, 1], ox, res, lo, hi_x) * stride
+                         + _cell(y + s * pts[k, 0] + c * pts[k, 1], oy, res, lo, hi_y))
     return out
 
 
