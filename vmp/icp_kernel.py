@@ -22,6 +22,9 @@ __all__ = ["CELL", "cell_keys", "count_near", "fit_covariance", "point_normals",
 CELL = 0.5  # cell side (m): ICP's widest correspondence gate, so a gate looks at 3 x 3 cells
 _OFFSET = 1 << 30  # cell coordinates are clipped to +-2^30 cells (5e8 m) and shifted positive
 _STRIDE = 1 << 32
+# Widens the cells looked at about a point (m): a partner exactly at the gate on a cell border
+# is not lost to rounding.
+_SLACK = 1e-9
 
 
 def cell_keys(points: np.ndarray) -> np.ndarray:
@@ -38,11 +41,11 @@ def _cell(v):  # pragma: no cover - compiled
 
 
 @kernel
-def _column_rows(keys, col, cy, reach):  # pragma: no cover - compiled
-    """The sorted rows ``lo:hi`` in column ``col`` of cells, rows ``cy - reach`` to
-    ``cy + reach`` (one range: a column's cells are consecutive in the sort)."""
-    return (np.searchsorted(keys, col * _STRIDE + cy - reach),
-            np.searchsorted(keys, col * _STRIDE + cy + reach, side="right"))
+def _column_rows(keys, col, row_lo, row_hi):  # pragma: no cover - compiled
+    """The sorted rows ``lo:hi`` in column ``col`` of cells, rows ``row_lo`` to ``row_hi``
+    (one range: a column's cells are consecutive in the sort)."""
+    return (np.searchsorted(keys, col * _STRIDE + row_lo),
+            np.searchsorted(keys, col * _STRIDE + row_hi, side="right"))
 
 
 @kernel
@@ -50,10 +53,14 @@ def _nearest(cells_keys, ref, qx, qy, gate):  # pragma: no cover - compiled
     """Row of the reference point nearest to (qx, qy) closer than ``gate``, or -1."""
     best = -1
     best_d2 = gate * gate
-    reach = math.ceil(gate / CELL)
-    cx, cy = _cell(qx), _cell(qy)
-    for col in range(cx - reach, cx + reach + 1):
-        lo, hi = _column_rows(cells_keys, col, cy, reach)
+    # Only the cells the square of side 2 gate about the query touches: a point closer than
+    # the gate lies in one of them, and they are visited in the order of the full 3 x 3 block
+    # (the same nearest, ties too), but once the gate has shrunk to a few centimetres that is
+    # one cell, seldom two, not nine (in a map's thick walls, a hundred points or more each).
+    reach = gate + _SLACK
+    row_lo, row_hi = _cell(qy - reach), _cell(qy + reach)
+    for col in range(_cell(qx - reach), _cell(qx + reach) + 1):
+        lo, hi = _column_rows(cells_keys, col, row_lo, row_hi)
         for k in range(lo, hi):
             dx = ref[k, 0] - qx
             dy = ref[k, 1] - qy
@@ -239,14 +246,14 @@ def point_normals(keys, points, k, max_spread):  # pragma: no cover - compiled
     best_d = np.empty(k)
     best_i = np.empty(k, dtype=np.int64)
     limit = max_spread * max_spread
-    reach = math.ceil(max_spread / CELL)  # cells either way that can hold a neighbour
+    reach = max_spread + _SLACK  # the cells within this either way can hold a neighbour
     for p in range(n):
         px = points[p, 0]
         py = points[p, 1]
         found = 0
-        cx, cy = _cell(px), _cell(py)
-        for col in range(cx - reach, cx + reach + 1):
-            lo, hi = _column_rows(keys, col, cy, reach)
+        row_lo, row_hi = _cell(py - reach), _cell(py + reach)
+        for col in range(_cell(px - reach), _cell(px + reach) + 1):
+            lo, hi = _column_rows(keys, col, row_lo, row_hi)
             for q in range(lo, hi):
                 dx = points[q, 0] - px
                 dy = points[q, 1] - py
