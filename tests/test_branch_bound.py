@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from vmp.branch_bound import Match, SearchGrid, _angles, block_sums, search
+from vmp.branch_bound import Match, SearchGrid, _angles, block_sums, first_match, search
 from vmp.types import compose, inverse, transform_points
 
 
@@ -90,6 +90,29 @@ def test_excluding_several_poses_leaves_each_out():
     every = np.vstack([known, third.pose])
     assert search(grid, live, center, 21.0, math.radians(3), min_score=0.9 * third.score,
                   exclude=(every, 0.5, math.radians(5))) is None
+
+
+def test_the_first_match_is_the_searches_in_turn():
+    """Windows along a row of three identical rooms, searched in one call: the first window
+    that holds a pose above the floor, and the very pose and score its own search finds."""
+    room = _room()
+    world = np.vstack([room, room + [20.0, 0.0], room + [40.0, 0.0]])
+    grid = SearchGrid(world, 0.1, 0.1, depth=4, max_window=1.0)
+    live = _seen_from(room, np.array([5.0, 4.0, 0.2]))
+    rng = np.random.default_rng(5)
+    centers = np.column_stack([rng.uniform(0.0, 48.0, 60), rng.uniform(1.0, 7.0, 60),
+                               rng.uniform(-math.pi, math.pi, 60)])
+    centers[41] = [45.2, 3.9, 0.25]  # near the third room's match: the first to answer
+    known = (np.array([[5.0, 4.0, 0.2]]), 0.5, math.radians(5))
+    floor = 0.8
+    each = [search(grid, live, c, 0.6, math.radians(10), floor, exclude=known)
+            for c in centers]
+    first = next(k for k, m in enumerate(each) if m is not None)
+    k, found = first_match(grid, live, centers, 0.6, math.radians(10), floor, exclude=known)
+    assert k == first and k <= 41
+    assert np.array_equal(found.pose, each[k].pose) and found.score == each[k].score
+    assert first_match(grid, live, centers[:first], 0.6, math.radians(10), floor,
+                       exclude=known) is None
 
 
 def test_a_grid_needs_points():

@@ -25,8 +25,8 @@ import numpy as np
 from vmp.jit import kernel
 from vmp.types import FloatArray
 
-__all__ = ["Match", "SearchGrid", "likelihood_grid", "mean_likelihood", "search",
-           "search_points"]
+__all__ = ["Match", "SearchGrid", "first_match", "likelihood_grid", "mean_likelihood",
+           "search", "search_points"]
 
 
 SEARCH_POINTS = 100  # live points searched with (evenly thinned) ...
@@ -254,29 +254,67 @@ def search(grid: SearchGrid, points: FloatArray, center: FloatArray, window_xy: 
     ``exclude`` (a pose or several, a distance and a turn) leaves out the poses that near
     any of them: the best pose elsewhere, to tell a clear peak from one of several alike.
     """
+    found = first_match(grid, points, np.reshape(center, (1, 3)), window_xy, window_theta,
+                        min_score, exclude)
+    return None if found is None else found[1]
+
+
+def first_match(grid: SearchGrid, points: FloatArray, centers: FloatArray, window_xy: float,
+                window_theta: float, min_score: float = 0.0,
+                exclude: tuple[FloatArray, float, float] | None = None
+                ) -> tuple[int, Match] | None:
+    """The first of ``centers`` ``(K, 3)``, in their order, whose window (as :func:`search`
+    has it) holds a pose scoring ``min_score``, and the best pose there; None when none does.
+    The answer of :func:`search` called on each in turn until one answers, in one compiled
+    loop: a search along a saved path is a few hundred small ones, and called one by one
+    their setting up cost more than their searching (docs/benchmarks.md, 2026-12-04)."""
     pts = np.asarray(points, dtype=np.float64)
+    centers = np.ascontiguousarray(np.reshape(centers, (-1, 3)), dtype=np.float64)
     res, depth = grid.resolution, grid.depth
-    thetas = center[2] + _angles(pts, res, window_theta)
+    turns = _angles(pts, res, window_theta)
     steps = min(math.ceil(window_xy / res - 1e-9), grid.max_steps)
-    # Each rotation's points, placed at the window's centre: flat cell indices (R, M), as
-    # grid.clamp(*grid.turned_cells(...)) has them (compiled: in NumPy, 0.17 s of the 0.21 s
-    # the small searches along the saved path took in ACES's tracked scans; 2026-12-04).
-    flat = _flat_cells(pts, float(center[0]), float(center[1]),
-                       np.array([math.cos(t) for t in thetas]),
-                       np.array([math.sin(t) for t in thetas]), float(grid.origin[0]),
-                       float(grid.origin[1]), res, *grid.bounds, grid.shape[1])
     ex_pose, ex_xy, ex_theta = (np.zeros(3), -1.0, -1.0) if exclude is None else exclude
     ex_pose = np.ascontiguousarray(np.reshape(ex_pose, (-1, 3)), dtype=np.float64)
-    score, r, x, y, evaluated = _branch_and_bound(
-        grid.stack.reshape(depth + 1, -1), flat,
-        255.0 * len(pts), steps, depth, min_score, grid.shape[1],
-        np.asarray(center, dtype=np.float64), thetas, res,
-        ex_pose, float(ex_xy), float(ex_theta))
-    if r < 0:
+    k, score, r, x, y, evaluated = _first_found(
+        grid.stack.reshape(depth + 1, -1), np.ascontiguousarray(pts), centers, turns,
+        float(grid.origin[0]), float(grid.origin[1]), res, *grid.bounds, grid.shape[1],
+        255.0 * len(pts), steps, depth, min_score, ex_pose, float(ex_xy), float(ex_theta))
+    if k < 0:
         return None
+    center = centers[k]
+    theta = (center[2] + turns)[r]
     pose = np.array([center[0] + x * res, center[1] + y * res,
-                     (thetas[r] + math.pi) % (2 * math.pi) - math.pi])
-    return Match(pose, float(score), int(evaluated))
+                     (theta + math.pi) % (2 * math.pi) - math.pi])
+    return int(k), Match(pose, float(score), int(evaluated))
+
+
+@kernel
+def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, stride, scale,
+                 steps, depth, min_score, ex_pose, ex_xy, ex_theta
+                 ):  # pragma: no cover - compiled
+    """The search about each of ``centers`` in turn until one finds a pose: (its index,
+    score, rotation, x and y offset in cells, candidates scored in all), index -1 when none
+    does. ``levels`` (depth + 1, cells) are the grid's levels flattened, ``turns`` the
+    rotations searched about a centre's heading."""
+    evaluated = 0
+    cos = np.empty(turns.shape[0])
+    sin = np.empty(turns.shape[0])
+    for k in range(centers.shape[0]):
+        thetas = centers[k, 2] + turns
+        for r in range(thetas.shape[0]):
+            cos[r] = math.cos(thetas[r])
+            sin[r] = math.sin(thetas[r])
+        # Each rotation's points, placed at the window's centre: flat cell indices (R, M),
+        # as grid.clamp(*grid.turned_cells(...)) has them.
+        flat = _flat_cells(pts, centers[k, 0], centers[k, 1], cos, sin, ox, oy, res, lo,
+                           hi_x, hi_y, stride)
+        score, r, x, y, n = _branch_and_bound(levels, flat, scale, steps, depth, min_score,
+                                              stride, centers[k], thetas, res, ex_pose,
+                                              ex_xy, ex_theta)
+        evaluated += n
+        if r >= 0:
+            return k, score, r, x, y, evaluated
+    return -1, 0.0, -1, 0, 0, evaluated
 
 
 @kernel

@@ -68,7 +68,7 @@ from enum import Enum
 
 import numpy as np
 
-from vmp.branch_bound import Match, search, search_points
+from vmp.branch_bound import Match, first_match, search, search_points
 from vmp.config import MappingConfig
 from vmp.frontend import FrontEnd, new_view
 from vmp.fusion import CHI2_3DOF_99, PoseFilter
@@ -521,14 +521,12 @@ class Localizer:
         apart = np.hypot(*(path[:, :2] - pose[:2]).T)
         offset = relative(path[np.argmin(apart)], pose)  # as the robot stands to the path
         exclude = (np.array(known).reshape(-1, 3), *ALIAS_APART)
-        for sample in path[apart > ALIAS_WINDOW]:  # a small search a metre, most pruned
-            for turn in (0.0, math.pi):  # along the path either way
-                centre = compose(sample + (0.0, 0.0, turn), offset)
-                found = search(grid, live, centre, PATH_WINDOW_XY, PATH_WINDOW_THETA, floor,
-                               exclude=exclude)
-                if found is not None:
-                    return found
-        return None
+        # A small search a metre along the path, facing along it either way, most pruned.
+        samples = np.repeat(path[apart > ALIAS_WINDOW], 2, axis=0)
+        samples[1::2, 2] += math.pi
+        found = first_match(grid, live, compose(samples, offset), PATH_WINDOW_XY,
+                            PATH_WINDOW_THETA, floor, exclude=exclude)
+        return None if found is None else found[1]
 
     def _resumed(self, fitting: list[Hypothesis]) -> Hypothesis | None:
         """The place declared before the robot was lost, when it fits again: its last
