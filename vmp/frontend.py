@@ -46,11 +46,15 @@ def new_view(last: FloatArray | None, pose: FloatArray, xy: float = NEW_VIEW_XY,
 class FrontEnd:
     """The filter's prediction from odometry and scan registration."""
 
-    def __init__(self, config: MappingConfig) -> None:
+    def __init__(self, config: MappingConfig, filtered: bool = True) -> None:
         self.config = config
+        # Without a filter of its own it only works out the increments (a localizer moves its
+        # hypotheses' filters by them).
+        self.filtered = filtered
         self.scan_odometry = ScanOdometry(config.scan_odometry, config.registration,
                                           config.motion)
         self.filter: PoseFilter | None = None
+        self._first = True  # no scan yet
         self.odom_pose = np.zeros(3)  # where odometry alone puts the robot
         self._odom_offset = np.zeros(3)  # odometry frame -> that pose, after any gaps
         self._last_odom: FloatArray | None = None  # the odometry of the scan before ...
@@ -62,8 +66,9 @@ class FrontEnd:
         # The last increment (scanner frame) and its covariance; zero before the second scan.
         self.increment: tuple[FloatArray, FloatArray] = (np.zeros(3), np.zeros((3, 3)))
 
-    def predict(self, frame: ScanFrame) -> None:
-        """Move the filter to this scan (the first scan starts it at its odometry)."""
+    def predict(self, frame: ScanFrame, points: FloatArray | None = None) -> None:
+        """Move the filter to this scan (the first scan starts it at its odometry);
+        ``points`` are the scan's end points when the caller has them already."""
         odom = frame.odom
         taken = None
         if odom is not None:
@@ -71,10 +76,12 @@ class FrontEnd:
             taken = self.latency.at(frame.stamp)
             if taken is None:  # the history does not reach back: the stamp's own
                 taken = odom
-        if self.filter is None:
+        if self._first:
+            self._first = False
             start = odom if odom is not None else np.zeros(3)
-            self.filter = PoseFilter(start, np.diag(np.square(INITIAL_SIGMA)),
-                                     self.config.motion)
+            if self.filtered:
+                self.filter = PoseFilter(start, np.diag(np.square(INITIAL_SIGMA)),
+                                         self.config.motion)
             self.odom_pose = start.copy()
         else:
             # The wheel increment is known when this scan and the one before carry odometry.
@@ -84,11 +91,13 @@ class FrontEnd:
                 if self._last_odom is None:  # odometry resumes: continue from where it stopped
                     self._odom_offset = compose(self.odom_pose, inverse(odom))
                 self.odom_pose = compose(self._odom_offset, odom)
-            u, q = self.scan_odometry.increment(frame.points(), wheel)
+            u, q = self.scan_odometry.increment(
+                frame.points() if points is None else points, wheel)
             self.increment = (u, q)
-            self.filter.predict(u, q)
-            self.motion_since_fix = self.motion_since_fix + rotate_covariance(
-                q, self.filter.pose[2])
+            if self.filter is not None:
+                self.filter.predict(u, q)
+                self.motion_since_fix = self.motion_since_fix + rotate_covariance(
+                    q, self.filter.pose[2])
             if wheel is not None and self.scan_odometry.registered is not None:
                 self.latency.registered(self._last_stamp, frame.stamp,
                                         float(self.scan_odometry.registered[2]))

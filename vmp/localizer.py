@@ -202,7 +202,7 @@ class Localizer:
         # scan odometry would), tracking scored 0.03 m on the Intel part's second half
         # against 0.014 m mapped, each scan's registration against the map's thick walls
         # pulling its own way; 0.022 m with scan odometry (docs/benchmarks.md).
-        self.front = FrontEnd(self.config)
+        self.front = FrontEnd(self.config, filtered=False)
         self.stats: Counter[str] = Counter()
         self.hypotheses: list[Hypothesis] = []
         self.scan = -1
@@ -222,10 +222,10 @@ class Localizer:
     def step(self, frame: ScanFrame) -> Step:
         """Move, verify and decide for one scan."""
         self.scan += 1
-        self.front.predict(frame)
+        points = self._points = frame.points()
+        self.front.predict(frame, points)
         u, q = self.front.increment
         self._odometry = compose(self._odometry, u)
-        points = self._points = frame.points()
         for h in self.hypotheses:
             h.filter.predict(u, q)
             self._track(h, points)
