@@ -14,6 +14,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
 from vmp.config import MotionNoise
+from vmp.linalg import solve
 from vmp.types import FloatArray, compose, rotate_covariance, wrap_angle
 
 __all__ = ["CHI2_3DOF_99", "PoseFilter", "motion_covariance", "pose_residual"]
@@ -93,7 +94,7 @@ class PoseFilter:
         """Squared Mahalanobis distance of a pose measurement from the prediction."""
         y = pose_residual(z, self._ekf.x)
         S = self._ekf.P + R
-        return float(y @ np.linalg.solve(S, y))
+        return float(y @ solve(S, y))
 
     def update(self, z: FloatArray, R: FloatArray) -> FloatArray:
         """Correct with a pose measurement ``z`` of covariance ``R``; returns the pose change."""

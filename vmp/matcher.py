@@ -23,6 +23,7 @@ import numpy as np
 from milestones.manager import MilestoneManager
 from vmp.config import MappingConfig
 from vmp.fusion import CHI2_3DOF_99, pose_residual
+from vmp.linalg import solve
 from vmp.registration import MIN_POINTS, Reference, Registration, fits, register
 from vmp.types import (
     BeamGeometry,
@@ -211,7 +212,7 @@ class Matcher:
                 loop_drift = loop_drift * LOOP_DRIFT_INFLATION
             spread = R + loop_drift
         y = pose_residual(z, x)
-        d2 = float(y @ np.linalg.solve(spread, y))
+        d2 = float(y @ solve(spread, y))
         reason = None
         if not fits(reg, c.registration):
             reason = Reason.POOR_FIT

@@ -17,6 +17,7 @@ import numpy as np
 
 from vmp.config import MotionNoise, RegistrationConfig, ScanOdometryConfig
 from vmp.fusion import CHI2_3DOF_99, motion_covariance
+from vmp.linalg import inv, solve
 from vmp.registration import MIN_POINTS, Reference, fits, register
 from vmp.types import FloatArray, compose, inverse, relative, widest_variance
 
@@ -129,12 +130,12 @@ class ScanOdometry:
         fit = fits(reg, self.registration)
         if fit:
             self.registered = u_reg
-        d2 = float(d @ np.linalg.solve(q_wheel + reg.covariance, d))
+        d2 = float(d @ solve(q_wheel + reg.covariance, d))
         if fit and q_wheel[0, 0] < 1.0:
             self._learn_noise(d2)
             self._learn_mount(wheel, u_reg, q_wheel + reg.covariance)
         q_slip = q_wheel * (self.tail_scale / self.noise_scale) + SLIP
-        disagree = float(d @ np.linalg.solve(q_slip + reg.covariance, d)) > CHI2_3DOF_99
+        disagree = float(d @ solve(q_slip + reg.covariance, d)) > CHI2_3DOF_99
         overrule = (fit and disagree and _sees_all(reg.covariance)
                     and self._confirmed(points, guess, reg.pose))
         if not fit or (disagree and not overrule):
@@ -160,9 +161,9 @@ class ScanOdometry:
                 self._learn_scale(wheel, u_reg, reg.covariance)
             # Fuse the two increments by information; registration constrains what it sees,
             # the wheels (as they may slip) the rest.
-            info_w = np.linalg.inv(q_slip)
-            info_r = np.linalg.inv(reg.covariance)
-            q = np.linalg.inv(info_w + info_r)
+            info_w = inv(q_slip)
+            info_r = inv(reg.covariance)
+            q = inv(info_w + info_r)
             u = wheel + q @ (info_r @ d)
         self._rel = compose(self._rel, u)
         if (np.hypot(self._rel[0], self._rel[1]) >= c.keyframe_distance
