@@ -19,7 +19,8 @@ from vmp.jit import kernel
 
 __all__ = ["CELL", "cell_keys", "count_near", "fit_covariance", "point_normals", "run_icp"]
 
-CELL = 0.5  # cell side (m): ICP's widest correspondence gate, so a gate looks at 3 x 3 cells
+# Cell side (m): ICP's widest correspondence gate, so a gate looks at 3 x 3 cells at most.
+CELL = 0.5
 _OFFSET = 1 << 30  # cell coordinates are clipped to +-2^30 cells (5e8 m) and shifted positive
 _STRIDE = 1 << 32
 # Widens the cells looked at about a point (m): a partner exactly at the gate on a cell border
