@@ -197,8 +197,14 @@ def _search_in_numpy(grid, points, center, window_xy, window_theta, min_score=0.
     res, depth = grid.resolution, grid.depth
     thetas = center[2] + _angles(pts, res, window_theta)
     steps = min(math.ceil(window_xy / res - 1e-9), grid.max_steps)
-    # Each rotation's points, placed at the window's centre: cell indices (R, M).
-    cx, cy = grid.clamp(*grid.turned_cells(pts, center[0], center[1], thetas))
+    # Each rotation's points, placed at the window's centre: cell indices (R, M), clamped.
+    c = np.array([math.cos(t) for t in thetas])[:, None]
+    s = np.array([math.sin(t) for t in thetas])[:, None]
+    cx = np.rint((center[0] + c * pts[:, 0] - s * pts[:, 1] - grid.origin[0]) / res)
+    cy = np.rint((center[1] + s * pts[:, 0] + c * pts[:, 1] - grid.origin[1]) / res)
+    lo, hi_x, hi_y = grid.bounds
+    cx = np.clip(cx.astype(np.int64), lo, hi_x)
+    cy = np.clip(cy.astype(np.int64), lo, hi_y)
     scale = 255.0 * len(pts)
     stride = grid.shape[1]
     flat = np.ascontiguousarray(cx * stride + cy)  # (R, M) flat cell indices

@@ -120,7 +120,7 @@ class SearchGrid:
         self.resolution, self.sigma, self.depth = float(resolution), float(sigma), int(depth)
         self.max_steps = math.ceil(max_window / resolution - 1e-9)
         # Zeros around the likelihood, wide enough that a point clamped into the padding
-        # (see :meth:`clamp`) reads zeros under every offset of the window on every level.
+        # (see :attr:`bounds`) reads zeros under every offset of the window on every level.
         self.pad = 2 * self.max_steps + (1 << depth) + 1
         # One byte a cell: the block maxima are gathered by the thousand per search level.
         self.origin, level0 = likelihood_grid(pts, self.resolution, self.sigma, self.pad)
@@ -140,34 +140,18 @@ class SearchGrid:
     def shape(self) -> tuple[int, int]:
         return self.levels[0].shape  # type: ignore[return-value]
 
-    def turned_cells(self, points: FloatArray, x: float, y: float, thetas
-                     ) -> tuple[np.ndarray, np.ndarray]:
-        """Cell indices ``(R, M)`` of ``points`` ``(M, 2)`` placed at (x, y) turned by each of
-        the ``R`` angles ``thetas`` (their cosines by ``math``, one at a time)."""
-        c = np.array([math.cos(t) for t in thetas])[:, None]
-        s = np.array([math.sin(t) for t in thetas])[:, None]
-        px = x + c * points[:, 0] - s * points[:, 1]
-        py = y + s * points[:, 0] + c * points[:, 1]
-        return (np.rint((px - self.origin[0]) / self.resolution).astype(np.int64),
-                np.rint((py - self.origin[1]) / self.resolution).astype(np.int64))
-
-    def clamp(self, cx: np.ndarray, cy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Cells moved into the padding where they lie beyond it: under any offset of a
-        window up to ``max_window`` they then index the grid and read zeros (the likelihood is
-        zero there too), so the search needs no bounds checks."""
-        lo, hi_x, hi_y = self.bounds
-        return np.clip(cx, lo, hi_x), np.clip(cy, lo, hi_y)
-
     @property
     def bounds(self) -> tuple[int, int, int]:
-        """The least cell index :meth:`clamp` leaves (either axis) and the greatest in x
-        and in y."""
+        """The least cell index a point's cell is clamped to (either axis) and the greatest
+        in x and in y: a point beyond them is moved into the padding, where under any offset
+        of a window up to ``max_window`` it indexes the grid and reads zeros (the likelihood
+        is zero there too), so the search needs no bounds checks."""
         hi = np.array(self.shape) - 1 - self.max_steps - (1 << self.depth)
         return self.max_steps, int(hi[0]), int(hi[1])
 
     def score(self, points: FloatArray, pose: FloatArray) -> float:
-        """Mean likelihood of ``points`` at ``pose`` (level 0), cells clamped as
-        :meth:`clamp` does."""
+        """Mean likelihood of ``points`` at ``pose`` (level 0), cells clamped to
+        :attr:`bounds`."""
         lo, hi_x, hi_y = self.bounds
         return mean_likelihood(self.levels[0], self.origin, self.resolution, points, pose,
                                (lo, lo), (hi_x, hi_y))
@@ -304,8 +288,7 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
         for r in range(thetas.shape[0]):
             cos[r] = math.cos(thetas[r])
             sin[r] = math.sin(thetas[r])
-        # Each rotation's points, placed at the window's centre: flat cell indices (R, M),
-        # as grid.clamp(*grid.turned_cells(...)) has them.
+        # Each rotation's points, placed at the window's centre: flat cell indices (R, M).
         flat = _flat_cells(pts, centers[k, 0], centers[k, 1], cos, sin, ox, oy, res, lo,
                            hi_x, hi_y, stride)
         score, r, x, y, n = _branch_and_bound(levels, flat, scale, steps, depth, min_score,
@@ -321,8 +304,7 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
 def _flat_cells(pts, x, y, cos, sin, ox, oy, res, lo, hi_x, hi_y, stride
                 ):  # pragma: no cover - compiled
     """Flat indices ``(R, M)`` of the cells of ``pts`` placed at (x, y) and turned by each
-    rotation of cosine ``cos[r]`` and sine ``sin[r]``, clamped as :meth:`SearchGrid.clamp`
-    clamps them."""
+    rotation of cosine ``cos[r]`` and sine ``sin[r]``, clamped to :attr:`SearchGrid.bounds`."""
     out = np.empty((cos.shape[0], pts.shape[0]), dtype=np.int64)
     for r in range(cos.shape[0]):
         c, s = cos[r], sin[r]
