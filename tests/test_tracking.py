@@ -13,14 +13,14 @@ import pytest
 from conftest import mapped
 
 import vmp.localizer as localizer_module
-import vmp.places as places_module
 from drivers import open_source
 from vmp.config import MappingConfig
 from vmp.fusion import PoseFilter
 from vmp.localization import LocalizationRun
 from vmp.localizer import MIN_FITS, Hypothesis, Localizer, State
 from vmp.mapfile import MapData
-from vmp.places import Place, Places
+from vmp.places import Places, fits_map
+from vmp.registration import Reference as MapReference
 from vmp.registration import fits, register
 from vmp.source import FrameList, Reference
 
@@ -48,34 +48,33 @@ def _scan(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 def test_a_scan_placed_well_in_a_thick_walled_map_fits_and_one_placed_wrong_does_not():
     rng = np.random.default_rng(3)
-    place = Place(0, np.zeros(3), _room(rng))
+    reference = MapReference(_room(rng))
     robot = np.array([4.0, 2.5, 0.3])
     scan = _scan(robot, rng)
-    reg = register(place.reference, scan, robot + [0.05, -0.03, 0.01])
+    reg = register(reference, scan, robot + [0.05, -0.03, 0.01])
     config = MappingConfig().registration
     assert np.hypot(*(reg.pose[:2] - robot[:2])) < 0.01
     assert not fits(reg, config)  # ICP found partners on a clear line for a quarter of it
-    assert place.fits(reg, scan, config)
+    assert fits_map(reference, reg, scan, config)
     elsewhere = replace(reg, pose=reg.pose + [1.0, 0.7, 0.0])
-    assert not place.fits(elsewhere, scan, config)
+    assert not fits_map(reference, elsewhere, scan, config)
 
 
-def test_a_submap_pushed_out_of_the_cache_keeps_what_tracking_built(monkeypatch):
-    """The searches look at many submaps; the one tracked keeps its registration reference
-    and its scoring field when they push it out of the cache, and scores as before."""
-    monkeypatch.setattr(places_module, "CACHED", 2)
+def test_scans_are_scored_and_registered_in_the_whole_map_in_its_frame():
+    """Tracking reads one reference and one grid of the whole saved map, in the map frame: a
+    scan of the saved run placed where it was taken is explained there and registers back to
+    it from a few centimetres off, and scores clearly less half a metre away."""
     r = mapped("lab")
     places = Places(r.pipeline.map, r.pipeline.milestones, r.trajectory)
-    first, *others = [int(m) for m in r.pipeline.milestones.ids[:4]]
-    tracked = places.place(first)
-    scan = tracked.points[::7]
-    reference, score = tracked.reference, tracked.score(scan, np.zeros(3))
-    for milestone in others:  # a search passes by
-        places.place(milestone)
-    again = places.place(first)
-    assert again is not tracked  # built anew, the submap itself dropped ...
-    assert again.reference is reference  # ... but not the reference
-    assert again.tracking[1] is not None and again.score(scan, np.zeros(3)) == score
+    frames = list(open_source("lab"))
+    config = MappingConfig().registration
+    for k in (50, 250, 450):
+        scan, at = frames[k].points(), r.trajectory[k]
+        reg = register(places.reference, scan, at + [0.04, -0.03, 0.01], corners=False)
+        assert np.hypot(*(reg.pose[:2] - at[:2])) < 0.02
+        assert places.fits(reg, scan, config)
+        assert places.score(scan, at) > 0.9
+        assert places.score(scan, at + [0.5, 0.0, 0.0]) < places.score(scan, at) - 0.2
 
 
 def _hypothesis(score: float, scans: int, declared: bool = False) -> Hypothesis:
@@ -91,8 +90,7 @@ def _hypothesis(score: float, scans: int, declared: bool = False) -> Hypothesis:
 class _NoLookAlikes:
     """A saved map in which no place has a look-alike nearby (nothing to search)."""
 
-    def nearest(self, pose: np.ndarray) -> None:
-        return None
+    points = np.zeros((0, 2))
 
 
 def _decided(hypotheses: list[Hypothesis]) -> tuple[State, Localizer]:

@@ -17,7 +17,8 @@ import numpy as np
 
 from vmp.jit import kernel
 
-__all__ = ["CELL", "cell_keys", "count_near", "fit_covariance", "point_normals", "run_icp"]
+__all__ = ["CELL", "cell_keys", "count_near", "fit_covariance", "likelihood_sum",
+           "point_normals", "run_icp"]
 
 # Cell side (m): ICP's widest correspondence gate, so a gate looks at 3 x 3 cells at most.
 CELL = 0.5
@@ -81,6 +82,30 @@ def count_near(keys, ref, points, distance):  # pragma: no cover - compiled
         if _nearest(keys, ref, points[i, 0], points[i, 1], distance) >= 0:
             count += 1
     return count
+
+
+@kernel
+def likelihood_sum(keys, ref, points, sigma, flat, reach):  # pragma: no cover - compiled
+    """The sum over ``points`` of ``exp(-e^2 / 2 sigma^2)``, ``e`` how much farther than
+    ``flat`` the nearest point of the reference ``ref`` (sorted by :func:`cell_keys`
+    ``keys``) lies; a point with none within ``reach`` adds nothing."""
+    total = 0.0
+    scale = -0.5 / (sigma * sigma)
+    for i in range(points.shape[0]):
+        qx = points[i, 0]
+        qy = points[i, 1]
+        # Within flat + sigma first: most points of a scan placed well have a partner there,
+        # and that gate touches fewer cells than ``reach`` (the same nearest: one within it
+        # is the nearest within reach).
+        k = _nearest(keys, ref, qx, qy, min(flat + sigma, reach))
+        if k < 0:
+            k = _nearest(keys, ref, qx, qy, reach)
+        if k >= 0:
+            dx = ref[k, 0] - qx
+            dy = ref[k, 1] - qy
+            e = max(math.sqrt(dx * dx + dy * dy) - flat, 0.0)
+            total += math.exp(e * e * scale)
+    return total
 
 
 @kernel

@@ -1,16 +1,17 @@
 """Localization in a saved map without a starting pose: propose, verify, decide, track.
 
 Every scan, each hypothesis of where the robot is (a pose filter of its own) moves by the
-odometry increment (:mod:`vmp.frontend`) and is registered against the submap of the saved
-milestone nearest it (:mod:`vmp.places`): a close fit within its filter's gate corrects it, a
-scan without one is a miss. Until one hypothesis is trusted, the milestone signatures propose
+odometry increment (:mod:`vmp.frontend`) and is registered against the saved map
+(:mod:`vmp.places`): a close fit within its filter's gate corrects it, a scan without one is a
+miss. Until one hypothesis is trusted, the milestone signatures propose
 places every few scans (:mod:`vmp.relocalization`), each search leaving out the places already
 followed and the milestones searched from about here, so that search after search goes farther
 down the signatures' list: a place that looks like the right one must not win only because the
 right one was never looked at.
 
-How well a scan fits a hypothesis is the mean likelihood of its points in the submap's search
-grid at the registered pose (the branch-and-bound score). A scan fits when ICP fits closely,
+How well a scan fits a hypothesis is the mean likelihood of its points in the map at the
+registered pose (:meth:`vmp.places.Places.score`: the branch-and-bound search's score, without
+its grid's rounding). A scan fits when ICP fits closely,
 within the hypothesis's gate, and it scores at least :data:`KEEP_RATIO` of what the hypothesis
 usually scores (a robot carried to a look-alike corridor still registers against the old
 one's walls, but its doors and ends no longer score). The robot is localized on the
@@ -21,7 +22,8 @@ minus its score) less than :data:`RIVAL_FACTOR` times the best's share plus
 :data:`RIVAL_MARGIN` (then it is ambiguous:
 in a corridor seen only to 8 m, or one whose pilasters all look alike, the right place cannot
 be told from the others until the robot sees something that tells them apart). In the
-simulated office the right place scores 0.998 (median; 0.98 at the tenth percentile), wrong
+simulated office (scored in the submaps' grids, with their rounding) the right place scored
+0.998 (median; 0.98 at the tenth percentile), wrong
 ones that ICP still fits 0.67 (0.84 at the ninetieth), but other stretches of corridor seen
 only to 8 m up to 0.976 over twenty scans: a ratio of scores cannot tell them apart, the
 share of points left unexplained can (0.001 against 0.024). The signatures propose only
@@ -72,7 +74,7 @@ from vmp.branch_bound import Match, first_match, search, search_points
 from vmp.config import MappingConfig
 from vmp.frontend import FrontEnd, new_view
 from vmp.fusion import CHI2_3DOF_99, PoseFilter
-from vmp.places import Place, Places
+from vmp.places import Places
 from vmp.registration import MIN_POINTS, register
 from vmp.relocalization import Proposal, propose
 from vmp.types import FloatArray, ScanFrame, compose, relative, rotate_covariance
@@ -94,7 +96,7 @@ RETRY_THETA = math.radians(10.0)  # ... or turned this much
 # kidnap is noticed as before. Registrations of nearly the same view against the same map share
 # the map's own local error: registering every 2 cm, 0.1 m or 0.25 m gave the same relation
 # errors on the Intel part, ACES and fr079 (docs/benchmarks.md), and a registration costs three
-# times what scan odometry does (a submap of 13,000 points against a scan's 180).
+# times what scan odometry does (a map of 13,000 points and more against a scan's 180).
 TRACK_EVERY_XY = 0.1
 TRACK_EVERY_THETA = math.radians(5.0)
 SAME_XY = 0.3  # a proposal this near a hypothesis (m) ...
@@ -106,17 +108,20 @@ MAX_HYPOTHESES = 8  # the most places followed at once (the lowest scores droppe
 WINDOW = 20  # scans over which hypotheses are compared
 KEEP_RATIO = 0.8  # a scan scoring less than this share of a hypothesis's usual is a miss
 # A place is a rival of the best when it leaves fewer than this many times the share of the
-# scans' points the best leaves unexplained (1 - score), plus this share.
+# scans' points the best leaves unexplained (1 - score), plus this share. A place followed
+# that is no rival is left out of the searches for look-alikes (:func:`_left_behind`).
 RIVAL_FACTOR = 2.0
-RIVAL_MARGIN = 0.02
-# A place followed is left out of the search for look-alikes once it leaves unexplained at
-# least RIVAL_FACTOR times the best's share plus this (:func:`_left_behind`; a rival leaves
-# less than that plus RIVAL_MARGIN): between the two, a margin of doubt (the simulated
-# corridor's right place in a bent map: 0.021 unexplained against its twin's 0.001, to stay
-# in; the warehouse's other loading dock: 0.04 against 0.002, to be left out).
-LEFT_MARGIN = 0.03
-REACH = 20.0  # live points scored: within this range (the submaps' reach, m)
-SWITCH_PLACE = 3.0  # a hypothesis this far from its submap's milestone takes the nearest (m)
+RIVAL_MARGIN = 0.01
+# The same margin for scores read from a branch-and-bound search grid (the searches for
+# look-alikes): its 0.1 m cells round a point's score by up to a third, and a scan's by a
+# tenth (the simulated warehouse's right place: 1.000 in one milestone's grid, 0.88 in the
+# map's). At 0.01 the simulated corridor's search along the path missed the right stretch of
+# its bent map, and its twin 28 m away was declared (docs/benchmarks.md, seventeenth session).
+GRID_MARGIN = 0.02
+# Live points registered and scored: within this range (m). (It was the submaps' reach when
+# each milestone's submap was tracked apart; kept for the whole map, so that tracking reads
+# the same points.)
+REACH = 20.0
 # Before a place is declared, the poses this far around it (m, rad) are searched for one that
 # explains the scan about as well (a pilaster 5 m along a corridor, a rack bay 2.5 m along an
 # aisle), leaving out those within ALIAS_APART of it.
@@ -154,7 +159,6 @@ class Hypothesis:
     declared: bool = False  # the localizer has declared it once (it may dead-reckon)
     scores: deque[float] = field(default_factory=lambda: deque(maxlen=WINDOW))  # 0: a miss
     fitted: deque[float] = field(default_factory=lambda: deque(maxlen=2 * WINDOW))
-    place: Place | None = None  # the submap it is registered against
     registered_at: FloatArray | None = None  # its pose at the last registration
     checked_at: FloatArray | None = None  # odometry pose when the path was searched for it
     alike: bool = False  # whether that search found a look-alike
@@ -206,7 +210,8 @@ class Localizer:
         self.stats: Counter[str] = Counter()
         self.hypotheses: list[Hypothesis] = []
         self.scan = -1
-        self._points = np.zeros((0, 2))  # this scan's points
+        self._points = np.zeros((0, 2))  # this scan's points ...
+        self._within = np.zeros((0, 2))  # ... and those within REACH
         self._last_search = -SEARCH_EVERY
         self.state = State.SEARCHING
         self._lost = False  # localized once, and the scans stopped fitting
@@ -223,12 +228,13 @@ class Localizer:
         """Move, verify and decide for one scan."""
         self.scan += 1
         points = self._points = frame.points()
+        self._within = points[np.hypot(points[:, 0], points[:, 1]) <= REACH]
         self.front.predict(frame, points)
         u, q = self.front.increment
         self._odometry = compose(self._odometry, u)
         for h in self.hypotheses:
             h.filter.predict(u, q)
-            self._track(h, points)
+            self._track(h)
         proposals: list[Proposal] = []
         trusted = self._trusted()
         if self.scan - self._last_search >= SEARCH_EVERY:
@@ -256,7 +262,7 @@ class Localizer:
                                       tried=self._tried_here())
         self._tried.update((mid, self._odometry.copy()) for mid in searched)
         for p in proposals:
-            self._follow(p.pose, p.score)
+            self._follow(p.pose)
         return proposals
 
     def _challenge(self, trusted: Hypothesis) -> None:
@@ -273,8 +279,8 @@ class Localizer:
             trusted.reference_score = trusted.score
             trusted.doubts = 0
         found = self._near(trusted, _least_as_well)
-        if found is not None and _clearly_better(found[1], found[2]):
-            self._follow(found[0], found[1])
+        if found is not None and _clearly_better(found[1], found[2], GRID_MARGIN):
+            self._follow(found[0])
             return
         if trusted.doubts:
             return
@@ -285,33 +291,22 @@ class Localizer:
         far = self._along_path(trusted.pose, _least_clearly_better, [trusted.pose])
         if far is not None:
             self.stats["places found along the path while doubted"] += 1
-            self._follow(far.pose, far.score)
+            self._follow(far.pose)
 
     # ---- hypotheses ------------------------------------------------------------------------
 
     def _start(self, pose: FloatArray, cov: FloatArray) -> Hypothesis:
         return Hypothesis(PoseFilter(pose, cov, self.config.motion))
 
-    def _track(self, h: Hypothesis, points: FloatArray) -> None:
+    def _track(self, h: Hypothesis) -> None:
         """Register the scan where ``h`` puts it; a close fit within its gate corrects it,
         a scan that scores less than usual there is a miss."""
-        place = h.place
-        if place is None or math.hypot(*(place.pose[:2] - h.pose[:2])) > SWITCH_PLACE:
-            place = h.place = self.places.nearest(h.pose)
-            h.registered_at = None
-        if place is None or len(points) < MIN_POINTS:
-            h.misses += 1
-            h.streak = 0
-            h.scores.append(0.0)
-            return
-        # The points within the submap's reach: beyond it nothing can match.
-        near = points[np.hypot(points[:, 0], points[:, 1]) <= REACH]
+        places, near = self.places, self._within
         if len(near) < MIN_POINTS:
             h.misses += 1
             h.streak = 0
             h.scores.append(0.0)
             return
-        predicted = relative(place.pose, h.pose)
         update = False
         # A place trusted is registered every TRACK_EVERY; one followed, whenever the robot
         # does not stand still.
@@ -324,34 +319,33 @@ class Localizer:
             # and corners along an aisle, matched those band points point to point on 10,137
             # of ACES's 11,567 registrations; the direction lines leave free stays the
             # filter's, carried by scan odometry (docs/benchmarks.md, 2026-12-02).
-            reg = register(place.reference, near, predicted, corners=False)
-            z = compose(place.pose, reg.pose)
-            R = rotate_covariance(reg.covariance, place.pose[2])
-            update = (place.fits(reg, near, self.config.registration)
-                      and h.filter.mahalanobis2(z, R) <= CHI2_3DOF_99)
+            reg = register(places.reference, near, h.pose, corners=False)
+            update = (places.fits(reg, near, self.config.registration)
+                      and h.filter.mahalanobis2(reg.pose, reg.covariance) <= CHI2_3DOF_99)
         # Scored where the scan lands: registered, or predicted when ICP did not fit (part
         # of the view may lie outside the map, a room it never saw) or was not run.
-        score = place.score(near, reg.pose if update else predicted)
+        score = places.score(near, reg.pose if update else h.pose)
         if score < KEEP_RATIO * h.usual:
             h.misses += 1
             h.streak = 0
             h.scores.append(0.0)
             return
         if update:
-            h.filter.update(z, R)
+            h.filter.update(reg.pose, reg.covariance)
         h.misses = 0
         h.fits += 1
         h.streak += 1
         h.fitted.append(score)
         h.scores.append(score)
 
-    def _follow(self, pose: FloatArray, score: float) -> None:
-        """Follow the place ``pose`` (first scoring ``score``), unless one followed is
-        already there."""
+    def _follow(self, pose: FloatArray) -> None:
+        """Follow the place ``pose`` (scored there as a tracked scan is), unless one followed
+        is already there."""
         if any(_same(h.pose, pose) for h in self.hypotheses):
             return
         cov = rotate_covariance(np.diag(np.square(PROPOSAL_SIGMA)), pose[2])
         h = self._start(pose, cov)
+        score = self.places.score(self._within, pose)
         h.scores.append(score)
         h.fitted.append(score)
         self.hypotheses.append(h)
@@ -397,22 +391,21 @@ class Localizer:
         only ever looks around the milestones, and a corridor of pilasters may hold none
         where the robot is)."""
         found = self._near(h, lambda mine: 0.0)
-        return found is not None and _as_well(found[1], found[2])
+        return found is not None and _as_well(found[1], found[2], GRID_MARGIN)
 
     def _near(self, h: Hypothesis, least: Callable[[float], float]
               ) -> tuple[FloatArray, float, float] | None:
         """The best pose within :data:`ALIAS_WINDOW` of ``h`` and at least
         :data:`ALIAS_APART` from it (map frame) where this scan scores ``least(mine)`` or
         more, that score and ``mine`` (the scan's score at ``h``); None when there is none."""
-        place = h.place or self.places.nearest(h.pose)
         live = search_points(self._points)
-        if place is None or len(live) < MIN_POINTS:
+        if len(live) < MIN_POINTS or len(self.places.points) == 0:
             return None
-        center = relative(place.pose, h.pose)
-        mine = place.grid.score(live, center)
-        other = search(place.grid, live, center, ALIAS_WINDOW, ALIAS_TURN, least(mine),
-                       exclude=(center, *ALIAS_APART))
-        return None if other is None else (compose(place.pose, other.pose), other.score, mine)
+        grid = self.places.grid
+        mine = grid.score(live, h.pose)
+        other = search(grid, live, h.pose, ALIAS_WINDOW, ALIAS_TURN, least(mine),
+                       exclude=(h.pose, *ALIAS_APART))
+        return None if other is None else (other.pose, other.score, mine)
 
     @staticmethod
     def _doubted(h: Hypothesis) -> bool:
@@ -487,14 +480,11 @@ class Localizer:
         declared (0.97; the right stretch scores 0.98-0.99 but was never proposed).
 
         A place found is followed from then on, and left out of the later searches once it
-        explains the scans followed clearly less than a rival does (:func:`_left_behind`):
-        in the simulated warehouse the other loading dock, 14 m along the aisle, matched
-        single scans as well, scored 0.96 over twenty where the right place scored 0.998,
-        and was found again at every search, holding the decision for 40-70 scans. A place
-        that loses by a hair stays in: where its stretch of the map is a little bent (the
-        simulated corridor, its map 0.15-0.2 m off in places) the right place scored 0.979
-        at its filter's pose, its twin 27 m away under a half turn 0.999, while the best pose
-        near the right place explained single scans as well (0.98-0.996)."""
+        has fitted :data:`MIN_FITS` scans and is no rival of the best (:func:`_left_behind`):
+        in the simulated warehouse the other loading dock, 14 m along the aisle, matches
+        single scans about as well in the search's grid, scores 0.98-0.99 over twenty where
+        the right place scores 1.000, and was found again at every search, holding the
+        decision for 40-70 scans."""
         if best.checked_at is not None and not self._moved_since(best.checked_at):
             return best.alike
         best.checked_at = self._odometry.copy()
@@ -502,7 +492,7 @@ class Localizer:
         left = [h.pose for h in self.hypotheses if h is best or _left_behind(h, best)]
         found = self._along_path(best.pose, _least_as_well, left)
         if found is not None:
-            self._follow(found.pose, found.score)
+            self._follow(found.pose)
             best.alike = True
         return best.alike
 
@@ -571,13 +561,9 @@ def _rival(h: Hypothesis, best: Hypothesis) -> bool:
 
 
 def _left_behind(h: Hypothesis, best: Hypothesis) -> bool:
-    """Whether ``h``, followed :data:`MIN_FITS` scans or more, explains the scans both were
-    followed clearly less than ``best``: it leaves unexplained at least :data:`RIVAL_FACTOR`
-    times the best's share plus :data:`LEFT_MARGIN`."""
-    if h.fits < MIN_FITS:
-        return False
-    mine, theirs = _over_common_scans(h, best)
-    return 1.0 - mine >= RIVAL_FACTOR * (1.0 - theirs) + LEFT_MARGIN
+    """Whether ``h``, followed :data:`MIN_FITS` scans or more, is no rival of ``best`` over
+    the scans both were followed (:func:`_rival`)."""
+    return h.fits >= MIN_FITS and not _rival(h, best)
 
 
 def _over_common_scans(h: Hypothesis, other: Hypothesis) -> tuple[float, float]:
@@ -586,30 +572,30 @@ def _over_common_scans(h: Hypothesis, other: Hypothesis) -> tuple[float, float]:
     return float(np.mean(list(h.scores)[-n:])), float(np.mean(list(other.scores)[-n:]))
 
 
-def _as_well(score: float, best: float) -> bool:
+def _as_well(score: float, best: float, margin: float = RIVAL_MARGIN) -> bool:
     """Whether a place scoring ``score`` explains the scans about as well as one scoring
     ``best``: it leaves fewer than :data:`RIVAL_FACTOR` times the share of points the best
     leaves unexplained, plus :data:`RIVAL_MARGIN`."""
-    return 1.0 - score < RIVAL_FACTOR * (1.0 - best) + RIVAL_MARGIN
+    return 1.0 - score < RIVAL_FACTOR * (1.0 - best) + margin
 
 
-def _clearly_better(score: float, than: float) -> bool:
+def _clearly_better(score: float, than: float, margin: float = RIVAL_MARGIN) -> bool:
     """Whether a place scoring ``score`` explains the scans clearly better than one scoring
     ``than``: it leaves unexplained less than the other's share over :data:`RIVAL_FACTOR`,
     less :data:`RIVAL_MARGIN`."""
-    return 1.0 - score < (1.0 - than) / RIVAL_FACTOR - RIVAL_MARGIN
+    return 1.0 - score < (1.0 - than) / RIVAL_FACTOR - margin
 
 
 def _least_clearly_better(than: float) -> float:
     """The score above which a place explains the scans clearly better than one scoring
     ``than`` (:func:`_clearly_better`), for a search to prune below."""
-    return 1.0 - ((1.0 - than) / RIVAL_FACTOR - RIVAL_MARGIN)
+    return 1.0 - ((1.0 - than) / RIVAL_FACTOR - GRID_MARGIN)
 
 
 def _least_as_well(best: float) -> float:
     """The score above which a place explains the scans about as well as one scoring
     ``best`` (:func:`_as_well`), for a search to prune below."""
-    return 1.0 - (RIVAL_FACTOR * (1.0 - best) + RIVAL_MARGIN)
+    return 1.0 - (RIVAL_FACTOR * (1.0 - best) + GRID_MARGIN)
 
 
 def _same(a: FloatArray, b: FloatArray) -> bool:

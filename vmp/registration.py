@@ -15,11 +15,18 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vmp.config import RegistrationConfig
-from vmp.icp_kernel import cell_keys, count_near, fit_covariance, point_normals, run_icp
+from vmp.icp_kernel import (
+    cell_keys,
+    count_near,
+    fit_covariance,
+    likelihood_sum,
+    point_normals,
+    run_icp,
+)
 from vmp.types import FloatArray, transform_points
 
 __all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "last_gate",
-           "register"]
+           "likelihood", "register"]
 
 
 MIN_POINTS = 20  # a scan with fewer returns is neither registered nor matched
@@ -101,6 +108,19 @@ def explained(reference: Reference, points: FloatArray, pose: FloatArray,
     placed = np.ascontiguousarray(transform_points(np.asarray(pose, dtype=np.float64), points))
     near = count_near(reference.cell_keys, reference.points, placed, float(distance))
     return near / len(points)
+
+
+def likelihood(reference: Reference, points: FloatArray, pose: FloatArray, sigma: float,
+               flat: float = 0.0) -> float:
+    """The mean over ``points`` (their frame) placed at ``pose`` of ``exp(-e^2 / 2
+    sigma^2)``, ``e`` how much farther than ``flat`` the nearest reference point lies (none
+    counts beyond ``flat`` plus 3 sigma, where it is 0.011); 0 for no points."""
+    if len(points) == 0:
+        return 0.0
+    placed = np.ascontiguousarray(transform_points(np.asarray(pose, dtype=np.float64), points))
+    total = likelihood_sum(reference.cell_keys, reference.points, placed, float(sigma),
+                           float(flat), float(flat) + 3.0 * float(sigma))
+    return total / len(points)
 
 
 def register(reference: Reference, points: FloatArray, initial: FloatArray,

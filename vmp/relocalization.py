@@ -5,7 +5,7 @@ the four comparison methods) gives the few best distinct milestones and, for eac
 offset of the live scan. Each is verified the way the loop search verifies a loop: a
 branch-and-bound search (:mod:`vmp.branch_bound`) of the live scan over the milestone's submap,
 in a window around the node, turned as the milestone faces or by the signature's heading
-offset, then ICP against the submap's points.
+offset, then ICP against the map.
 A proposal that scores well and fits closely is a place the robot may be; which of them it is
 the localizer (:mod:`vmp.localizer`) decides over the following scans.
 """
@@ -45,7 +45,7 @@ class Proposal:
     milestone: int  # whose submap it was found in
     score: float  # the search's mean likelihood
     signature: float  # the signature score of the milestone (lower is better)
-    registration: Registration  # the refinement, in the milestone's frame
+    registration: Registration  # the refinement, in the map frame
 
 
 def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
@@ -87,15 +87,15 @@ def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
         best = _search(place, live, cand.heading_offset, places.milestones.config.record_turn)
         if best is None:
             continue
-        reg = register(place.reference, points, best.pose)
-        shift = relative(best.pose, reg.pose)
-        if (not place.fits(reg, points, registration)
+        found = compose(place.pose, best.pose)
+        reg = register(places.reference, points, found)
+        shift = relative(found, reg.pose)
+        if (not places.fits(reg, points, registration)
                 or math.hypot(shift[0], shift[1]) > MAX_SHIFT
                 or abs(shift[2]) > MAX_TURN):
             continue
         stats["places verified"] += 1
-        out.append(Proposal(compose(place.pose, reg.pose), cand.id, best.score, cand.score,
-                            reg))
+        out.append(Proposal(reg.pose, cand.id, best.score, cand.score, reg))
     return out, searched
 
 
