@@ -9,7 +9,7 @@ from scipy.spatial import cKDTree
 
 from drivers.scenario import load_scenario
 from drivers.simulator import Simulator
-from vmp.icp_kernel import _nearest, fit_covariance, run_icp
+from vmp.icp_kernel import _column_rows, _nearest, fit_covariance, run_icp
 from vmp.registration import (
     CORNER_WEIGHT,
     COVARIANCE_SCALE,
@@ -29,26 +29,48 @@ from vmp.registration import (
 from vmp.types import relative, transform_points
 
 
+@pytest.mark.parametrize("dense", [False, True])
 @pytest.mark.parametrize("gate", [0.08, 0.3, 0.5, 1.3])
-def test_nearest_is_the_k_d_trees_nearest_within_the_gate(gate):
+def test_nearest_is_the_k_d_trees_nearest_within_the_gate(gate, dense):
     rng = np.random.default_rng(7)
-    # Clusters along lines and a few points far out, on both sides of the origin.
+    # Clusters along lines and, in the sparse reference, a few points far out, on both sides
+    # of the origin (its cells found by binary search; the dense one's in a table).
     t = rng.uniform(-20, 20, 400)
     pts = np.concatenate([np.stack([t, 0.3 * t + rng.normal(0, 0.02, 400)], 1),
-                          rng.uniform(-3, 3, (100, 2)), [[1e4, -1e4], [-7e5, 3.0]]])
+                          rng.uniform(-3, 3, (100, 2))])
+    pts = (np.concatenate([pts, rng.uniform(-20, 20, (6000, 2))]) if dense
+           else np.concatenate([pts, [[1e4, -1e4], [-7e5, 3.0]]]))
     ref = Reference(pts)
+    assert (ref.cells[1].size > 0) == dense
     queries = np.concatenate([ref.points[:300] + rng.normal(0, 0.7 * gate, (300, 2)),
                               rng.uniform(-25, 25, (300, 2)), [[1e4, -1e4 + 0.01]],
                               # exactly on cell borders
                               [[0.0, 0.0], [0.5, -0.5], [-1.0, 2.5]]])
     dist, _ = cKDTree(ref.points).query(queries, distance_upper_bound=gate)
-    found = np.array([_nearest(ref.cell_keys, ref.points, q[0], q[1], gate) for q in queries])
+    found = np.array([_nearest(ref.cells, ref.points, q[0], q[1], gate) for q in queries])
     hit = np.isfinite(dist)
     assert hit.sum() > 100 and (~hit).sum() > 100  # both kinds are tested
     assert np.all(found[~hit] == -1)
     # The same point, or one exactly as near (ties).
     near = np.hypot(*(ref.points[found[hit]] - queries[hit]).T)
     assert np.allclose(near, dist[hit], rtol=0, atol=1e-12)
+
+
+def test_a_dense_references_table_gives_the_rows_the_binary_search_does():
+    rng = np.random.default_rng(4)
+    ref = Reference(np.concatenate([rng.uniform(-10, 10, (3000, 2)),
+                                    rng.normal(0, 0.3, (2000, 2)) + [3.0, -2.0]]))
+    keys, table, col0, row0 = ref.cells
+    assert table.shape == (40, 41)  # 20 m in 0.5 m cells, and the columns' ends
+    searched = (keys, np.zeros((0, 0), dtype=np.int64), 0, 0)
+    # Columns and rows inside the box, at its edges and beyond it on every side.
+    for col in range(col0 - 3, col0 + table.shape[0] + 3):
+        for row_lo, row_hi in [(row0 - 5, row0 - 1), (row0 - 2, row0 + 1), (row0 + 7, row0 + 7),
+                               (row0 + 10, row0 + 30), (row0 + 38, row0 + 45),
+                               (row0 + 41, row0 + 44), (row0 - 9, row0 + 60)]:
+            # The same rows (empty ranges alike, wherever they start).
+            assert (range(*_column_rows(ref.cells, col, row_lo, row_hi))
+                    == range(*_column_rows(searched, col, row_lo, row_hi)))
 
 
 def _numpy_icp(reference, pts, initial, corners):
@@ -109,7 +131,7 @@ def test_the_compiled_icp_takes_the_numpy_loops_steps(corners):
                  for rr in np.where(np.isfinite(r), r, np.nan)]
         ref = Reference(scans[0])
         guess = relative(a, b) + [0.1, -0.1, 0.03]
-        got = run_icp(ref.cell_keys, ref.points, ref.normals, ref.valid, ref.corner,
+        got = run_icp(ref.cells, ref.points, ref.normals, ref.valid, ref.corner,
                       np.ascontiguousarray(scans[1]), *guess, corners, START_DISTANCE,
                       MIN_DISTANCE, HUBER, CORNER_WEIGHT, TOLERANCE, MAX_ITERATIONS)
         want = _numpy_icp(ref, scans[1], guess, corners)
@@ -124,7 +146,7 @@ def test_the_compiled_icp_takes_the_numpy_loops_steps(corners):
 def test_a_pose_gone_to_nan_matches_nothing():
     ref = Reference(np.stack([np.linspace(0, 5, 50), np.ones(50)], 1))
     pts = np.stack([np.linspace(0, 5, 50), np.ones(50)], 1)
-    out = run_icp(ref.cell_keys, ref.points, ref.normals, ref.valid, ref.corner, pts,
+    out = run_icp(ref.cells, ref.points, ref.normals, ref.valid, ref.corner, pts,
                   math.nan, 0.0, 0.0, True, START_DISTANCE, MIN_DISTANCE, HUBER, CORNER_WEIGHT,
                   TOLERANCE, MAX_ITERATIONS)
     assert math.isinf(out[4]) and out[6] == 0.0 and out[7] == 1  # no fit, stopped at once
@@ -195,7 +217,7 @@ def test_point_normals_are_the_k_d_trees(spread):
     valid = (cnt >= 3) & (tr / 2 - disc <= 0.1 * np.maximum(tr / 2 + disc, 1e-12))
     corner = (cnt >= 3) & ~valid
     assert valid.sum() > 250 and corner.sum() > 20 and (cnt < 3).sum() > 5
-    got_normals, got_valid, got_corner = point_normals(ref.cell_keys, p, NEIGHBOURS, spread)
+    got_normals, got_valid, got_corner = point_normals(ref.cells, p, NEIGHBOURS, spread)
     np.testing.assert_array_equal(got_valid, valid)
     np.testing.assert_array_equal(got_corner, corner)
     np.testing.assert_allclose(got_normals, normals, rtol=0, atol=1e-12)

@@ -17,8 +17,8 @@ import numpy as np
 
 from vmp.jit import kernel
 
-__all__ = ["CELL", "cell_keys", "count_near", "fit_covariance", "likelihood_sum",
-           "point_normals", "run_icp"]
+__all__ = ["CELL", "cell_index", "cell_keys", "count_near", "fit_covariance",
+           "likelihood_sum", "point_normals", "run_icp"]
 
 # Cell side (m): ICP's widest correspondence gate, so a gate looks at 3 x 3 cells at most.
 CELL = 0.5
@@ -27,6 +27,9 @@ _STRIDE = 1 << 32
 # Widens the cells looked at about a point (m): a partner exactly at the gate on a cell border
 # is not lost to rounding.
 _SLACK = 1e-9
+# A reference gets a table of its cells (:func:`cell_index`) when its bounding box holds at
+# most this many cells a point.
+DENSE = 4
 
 
 def cell_keys(points: np.ndarray) -> np.ndarray:
@@ -36,6 +39,32 @@ def cell_keys(points: np.ndarray) -> np.ndarray:
     return cells[:, 0] * _STRIDE + cells[:, 1]
 
 
+def cell_index(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """What the kernels look a sorted reference's cells up in: its ``keys`` (sorted), and
+    where they are dense (a map: at least a point for every four cells of their bounding
+    box), a table of where each cell's rows start, columns by rows, with the box's first
+    column and row; else an empty table (a scan: 180 points spread over 80 m).
+
+    In a table a cell's rows are found at once; in the keys, by two binary searches a column
+    (about 200 ns each among a saved map's 53,000 points, most of what finding a point's
+    nearest neighbour cost: docs/benchmarks.md, seventeenth session)."""
+    keys = np.ascontiguousarray(keys, dtype=np.int64)
+    none = np.zeros((0, 0), dtype=np.int64)
+    if len(keys) == 0:
+        return keys, none, 0, 0
+    cols, rows = keys // _STRIDE, keys % _STRIDE
+    col0, row0 = int(cols.min()), int(rows.min())
+    n_cols, n_rows = int(cols.max()) - col0 + 1, int(rows.max()) - row0 + 1
+    if n_cols * (n_rows + 1) > DENSE * len(keys):
+        return keys, none, 0, 0
+    # Row r of column c: the first point at or after cell (col0 + c, row0 + r); r = n_rows
+    # is the column's end.
+    starts = ((col0 + np.arange(n_cols, dtype=np.int64))[:, None] * _STRIDE
+              + row0 + np.arange(n_rows + 1, dtype=np.int64)[None, :])
+    table = np.searchsorted(keys, starts.ravel()).reshape(n_cols, n_rows + 1)
+    return keys, np.ascontiguousarray(table, dtype=np.int64), col0, row0
+
+
 @kernel
 def _cell(v):  # pragma: no cover - compiled
     """The (shifted) cell coordinate of one coordinate ``v``, as :func:`cell_keys` has it."""
@@ -43,15 +72,24 @@ def _cell(v):  # pragma: no cover - compiled
 
 
 @kernel
-def _column_rows(keys, col, row_lo, row_hi):  # pragma: no cover - compiled
+def _column_rows(cells, col, row_lo, row_hi):  # pragma: no cover - compiled
     """The sorted rows ``lo:hi`` in column ``col`` of cells, rows ``row_lo`` to ``row_hi``
-    (one range: a column's cells are consecutive in the sort)."""
-    return (np.searchsorted(keys, col * _STRIDE + row_lo),
-            np.searchsorted(keys, col * _STRIDE + row_hi, side="right"))
+    (one range: a column's cells are consecutive in the sort), looked up in ``cells``
+    (:func:`cell_index`)."""
+    keys, table, col0, row0 = cells
+    if table.shape[0] == 0:
+        return (np.searchsorted(keys, col * _STRIDE + row_lo),
+                np.searchsorted(keys, col * _STRIDE + row_hi, side="right"))
+    c = col - col0
+    if c < 0 or c >= table.shape[0]:
+        return 0, 0
+    last = table.shape[1] - 1
+    return (table[c, min(max(row_lo - row0, 0), last)],
+            table[c, min(max(row_hi + 1 - row0, 0), last)])
 
 
 @kernel
-def _nearest(cells_keys, ref, qx, qy, gate):  # pragma: no cover - compiled
+def _nearest(cells, ref, qx, qy, gate):  # pragma: no cover - compiled
     """Row of the reference point nearest to (qx, qy) closer than ``gate``, or -1."""
     best = -1
     best_d2 = gate * gate
@@ -62,7 +100,7 @@ def _nearest(cells_keys, ref, qx, qy, gate):  # pragma: no cover - compiled
     reach = gate + _SLACK
     row_lo, row_hi = _cell(qy - reach), _cell(qy + reach)
     for col in range(_cell(qx - reach), _cell(qx + reach) + 1):
-        lo, hi = _column_rows(cells_keys, col, row_lo, row_hi)
+        lo, hi = _column_rows(cells, col, row_lo, row_hi)
         for k in range(lo, hi):
             dx = ref[k, 0] - qx
             dy = ref[k, 1] - qy
@@ -74,21 +112,21 @@ def _nearest(cells_keys, ref, qx, qy, gate):  # pragma: no cover - compiled
 
 
 @kernel
-def count_near(keys, ref, points, distance):  # pragma: no cover - compiled
+def count_near(cells, ref, points, distance):  # pragma: no cover - compiled
     """How many of ``points`` lie closer than ``distance`` to a point of the reference
-    ``ref`` (sorted by :func:`cell_keys` ``keys``)."""
+    ``ref`` (its cells: :func:`cell_index`)."""
     count = 0
     for i in range(points.shape[0]):
-        if _nearest(keys, ref, points[i, 0], points[i, 1], distance) >= 0:
+        if _nearest(cells, ref, points[i, 0], points[i, 1], distance) >= 0:
             count += 1
     return count
 
 
 @kernel
-def likelihood_sum(keys, ref, points, sigma, flat, reach):  # pragma: no cover - compiled
+def likelihood_sum(cells, ref, points, sigma, flat, reach):  # pragma: no cover - compiled
     """The sum over ``points`` of ``exp(-e^2 / 2 sigma^2)``, ``e`` how much farther than
-    ``flat`` the nearest point of the reference ``ref`` (sorted by :func:`cell_keys`
-    ``keys``) lies; a point with none within ``reach`` adds nothing."""
+    ``flat`` the nearest point of the reference ``ref`` (its cells: :func:`cell_index`)
+    lies; a point with none within ``reach`` adds nothing."""
     total = 0.0
     scale = -0.5 / (sigma * sigma)
     for i in range(points.shape[0]):
@@ -97,9 +135,9 @@ def likelihood_sum(keys, ref, points, sigma, flat, reach):  # pragma: no cover -
         # Within flat + sigma first: most points of a scan placed well have a partner there,
         # and that gate touches fewer cells than ``reach`` (the same nearest: one within it
         # is the nearest within reach).
-        k = _nearest(keys, ref, qx, qy, min(flat + sigma, reach))
+        k = _nearest(cells, ref, qx, qy, min(flat + sigma, reach))
         if k < 0:
-            k = _nearest(keys, ref, qx, qy, reach)
+            k = _nearest(cells, ref, qx, qy, reach)
         if k >= 0:
             dx = ref[k, 0] - qx
             dy = ref[k, 1] - qy
@@ -109,7 +147,7 @@ def likelihood_sum(keys, ref, points, sigma, flat, reach):  # pragma: no cover -
 
 
 @kernel
-def run_icp(keys, ref, normals, line, corner, pts, x, y, th, corners, start_gate, min_gate,
+def run_icp(cells, ref, normals, line, corner, pts, x, y, th, corners, start_gate, min_gate,
             huber, corner_weight, tolerance, max_iterations):  # pragma: no cover - compiled
     """ICP of ``pts`` from (x, y, th): returns x, y, th, the last normal matrix H (3 x 3), the
     weighted residual RMS, the matched count, the summed weights, iterations and whether the
@@ -136,7 +174,7 @@ def run_icp(keys, ref, normals, line, corner, pts, x, y, th, corners, start_gate
             qy = pts[i, 0] * s + pts[i, 1] * c + y
             if not (math.isfinite(qx) and math.isfinite(qy)):
                 continue
-            k = _nearest(keys, ref, qx, qy, gate)
+            k = _nearest(cells, ref, qx, qy, gate)
             if k < 0:
                 continue
             if line[k]:
@@ -258,7 +296,7 @@ def fit_covariance(H, rms, wsum, min_constraint, degenerate_share, scale, min_si
 
 
 @kernel
-def point_normals(keys, points, k, max_spread):  # pragma: no cover - compiled
+def point_normals(cells, points, k, max_spread):  # pragma: no cover - compiled
     """Per point of a reference sorted by :func:`cell_keys`: the normal of the line through
     its ``k`` nearest points (itself included) that lie within ``max_spread``, whether they
     lie on a line (``line``: at least three, the minor axis of their scatter under a tenth of
@@ -279,7 +317,7 @@ def point_normals(keys, points, k, max_spread):  # pragma: no cover - compiled
         found = 0
         row_lo, row_hi = _cell(py - reach), _cell(py + reach)
         for col in range(_cell(px - reach), _cell(px + reach) + 1):
-            lo, hi = _column_rows(keys, col, row_lo, row_hi)
+            lo, hi = _column_rows(cells, col, row_lo, row_hi)
             for q in range(lo, hi):
                 dx = points[q, 0] - px
                 dy = points[q, 1] - py

@@ -16,6 +16,7 @@ import numpy as np
 
 from vmp.config import RegistrationConfig
 from vmp.icp_kernel import (
+    cell_index,
     cell_keys,
     count_near,
     fit_covariance,
@@ -81,10 +82,10 @@ class Reference:
         # Sorted by grid cell, as the compiled ICP looks its neighbours up (vmp.icp_kernel).
         keys = cell_keys(pts)
         order = np.argsort(keys, kind="stable")
-        self.cell_keys = np.ascontiguousarray(keys[order])
+        self.cells = cell_index(keys[order])
         pts = self.points = np.ascontiguousarray(pts[order])
         self.normals, self.valid, self.corner = point_normals(
-            self.cell_keys, pts, min(NEIGHBOURS, len(pts)), MAX_NORMAL_SPREAD)
+            self.cells, pts, min(NEIGHBOURS, len(pts)), MAX_NORMAL_SPREAD)
 
 
 def fits(reg: Registration, config: RegistrationConfig) -> bool:
@@ -106,7 +107,7 @@ def explained(reference: Reference, points: FloatArray, pose: FloatArray,
     if len(points) == 0:
         return 0.0
     placed = np.ascontiguousarray(transform_points(np.asarray(pose, dtype=np.float64), points))
-    near = count_near(reference.cell_keys, reference.points, placed, float(distance))
+    near = count_near(reference.cells, reference.points, placed, float(distance))
     return near / len(points)
 
 
@@ -118,7 +119,7 @@ def likelihood(reference: Reference, points: FloatArray, pose: FloatArray, sigma
     if len(points) == 0:
         return 0.0
     placed = np.ascontiguousarray(transform_points(np.asarray(pose, dtype=np.float64), points))
-    total = likelihood_sum(reference.cell_keys, reference.points, placed, float(sigma),
+    total = likelihood_sum(reference.cells, reference.points, placed, float(sigma),
                            float(flat), float(flat) + 3.0 * float(sigma))
     return total / len(points)
 
@@ -143,7 +144,7 @@ def _icp(reference: Reference, pts: FloatArray, initial: FloatArray,
     how many directions of translation its fit leaves free (none when nothing was
     matched)."""
     x, y, th, H, rms, inliers, wsum, it, converged = run_icp(
-        reference.cell_keys, reference.points, reference.normals, reference.valid,
+        reference.cells, reference.points, reference.normals, reference.valid,
         reference.corner,
         np.ascontiguousarray(pts), float(initial[0]), float(initial[1]), float(initial[2]),
         corners, START_DISTANCE, MIN_DISTANCE, HUBER, CORNER_WEIGHT, TOLERANCE,
