@@ -112,12 +112,30 @@ def _nearest(cells, ref, qx, qy, gate):  # pragma: no cover - compiled
 
 
 @kernel
+def _any_within(cells, ref, qx, qy, gate):  # pragma: no cover - compiled
+    """Whether a reference point lies closer than ``gate`` to (qx, qy): :func:`_nearest`'s
+    question where any answer will do, so the first found ends the search (a scan placed
+    well has one in the first cell or two looked at, in a map's wall bands of dozens)."""
+    reach = gate + _SLACK
+    gate2 = gate * gate
+    row_lo, row_hi = _cell(qy - reach), _cell(qy + reach)
+    for col in range(_cell(qx - reach), _cell(qx + reach) + 1):
+        lo, hi = _column_rows(cells, col, row_lo, row_hi)
+        for k in range(lo, hi):
+            dx = ref[k, 0] - qx
+            dy = ref[k, 1] - qy
+            if dx * dx + dy * dy < gate2:
+                return True
+    return False
+
+
+@kernel
 def count_near(cells, ref, points, distance):  # pragma: no cover - compiled
     """How many of ``points`` lie closer than ``distance`` to a point of the reference
     ``ref`` (its cells: :func:`cell_index`)."""
     count = 0
     for i in range(points.shape[0]):
-        if _nearest(cells, ref, points[i, 0], points[i, 1], distance) >= 0:
+        if _any_within(cells, ref, points[i, 0], points[i, 1], distance):
             count += 1
     return count
 
@@ -132,9 +150,12 @@ def likelihood_sum(cells, ref, points, sigma, flat, reach):  # pragma: no cover 
     for i in range(points.shape[0]):
         qx = points[i, 0]
         qy = points[i, 1]
-        # Within flat + sigma first: most points of a scan placed well have a partner there,
-        # and that gate touches fewer cells than ``reach`` (the same nearest: one within it
-        # is the nearest within reach).
+        # A point with a partner within ``flat`` scores 1 whichever is nearest (most of a
+        # scan placed well); else the nearest within flat + sigma, which touches fewer cells
+        # than ``reach`` (the same nearest: one within it is the nearest within reach).
+        if _any_within(cells, ref, qx, qy, min(flat, reach)):
+            total += 1.0
+            continue
         k = _nearest(cells, ref, qx, qy, min(flat + sigma, reach))
         if k < 0:
             k = _nearest(cells, ref, qx, qy, reach)
