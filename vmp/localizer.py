@@ -278,7 +278,7 @@ class Localizer:
             # here (a room it never saw), and only a further fall is doubted.
             trusted.reference_score = trusted.score
             trusted.doubts = 0
-        found = self._near(trusted, _least_as_well)
+        found = self._near(trusted, _least_clearly_better)
         if found is not None and _clearly_better(found[1], found[2], GRID_MARGIN):
             self._follow(found[0])
             return
