@@ -2,11 +2,13 @@
 
 Localization reads a saved map and never changes it, so its frame is settled: every hit point
 of the assembled map is placed once (voxel-thinned). Scans are tracked against the whole map at
-once, in its frame: one registration reference and one likelihood grid, built on first use.
-(Each milestone's submap had its own, built when first asked for and kept, least recently used
-dropped: the submaps, 20 m across and a few metres apart, overlap many times over, and building
-the references of those the robot passed was 16 % of tracking the Intel part's second half and
-17 % of fr079's; docs/benchmarks.md, seventeenth session.) Around each milestone the points
+once, in its frame: registered against one reference of its points and scored by their
+distances to them (:meth:`Places.score`), built on first use, and searched for look-alikes in
+one branch-and-bound grid. (Each milestone's submap had its own reference and scoring grid,
+built when first asked for and kept, least recently used dropped: the submaps, 40 m across and
+a few metres apart, overlap many times over, and building the references of those the robot
+passed was 16 % of tracking the Intel part's second half and 17 % of fr079's;
+docs/benchmarks.md, seventeenth session.) Around each milestone the points
 within :data:`GRID_RADIUS` form its submap, in the milestone's frame, whichever part of the path
 saw them, with a branch-and-bound search grid for the global search (turned as the milestone
 faces). The mapper's submaps (:mod:`vmp.submaps`) take only the milestone's segments and its
