@@ -54,6 +54,10 @@ def test_nearest_is_the_k_d_trees_nearest_within_the_gate(gate, dense):
     # The same point, or one exactly as near (ties).
     near = np.hypot(*(ref.points[found[hit]] - queries[hit]).T)
     assert np.allclose(near, dist[hit], rtol=0, atol=1e-12)
+    # Asked for any within the gate: one exactly where the nearest is.
+    first = np.array([_nearest(ref.cells, ref.points, q[0], q[1], gate, True) for q in queries])
+    assert np.all((first >= 0) == hit)
+    assert np.all(np.hypot(*(ref.points[first[hit]] - queries[hit]).T) < gate)
 
 
 def test_a_dense_references_table_gives_the_rows_the_binary_search_does():

@@ -89,8 +89,11 @@ def _column_rows(cells, col, row_lo, row_hi):  # pragma: no cover - compiled
 
 
 @kernel
-def _nearest(cells, ref, qx, qy, gate):  # pragma: no cover - compiled
-    """Row of the reference point nearest to (qx, qy) closer than ``gate``, or -1."""
+def _nearest(cells, ref, qx, qy, gate, first=False):  # pragma: no cover - compiled
+    """Row of the reference point nearest to (qx, qy) closer than ``gate``, or -1; with
+    ``first``, of any closer than ``gate``: the first found ends the search, where any
+    answer will do (a scan placed well has one in the first cell or two looked at, in a map's
+    wall bands of dozens)."""
     best = -1
     best_d2 = gate * gate
     # Only the cells the square of side 2 gate about the query touches: a point closer than
@@ -106,27 +109,11 @@ def _nearest(cells, ref, qx, qy, gate):  # pragma: no cover - compiled
             dy = ref[k, 1] - qy
             d2 = dx * dx + dy * dy
             if d2 < best_d2:
+                if first:
+                    return k
                 best_d2 = d2
                 best = k
     return best
-
-
-@kernel
-def _any_within(cells, ref, qx, qy, gate):  # pragma: no cover - compiled
-    """Whether a reference point lies closer than ``gate`` to (qx, qy): :func:`_nearest`'s
-    question where any answer will do, so the first found ends the search (a scan placed
-    well has one in the first cell or two looked at, in a map's wall bands of dozens)."""
-    reach = gate + _SLACK
-    gate2 = gate * gate
-    row_lo, row_hi = _cell(qy - reach), _cell(qy + reach)
-    for col in range(_cell(qx - reach), _cell(qx + reach) + 1):
-        lo, hi = _column_rows(cells, col, row_lo, row_hi)
-        for k in range(lo, hi):
-            dx = ref[k, 0] - qx
-            dy = ref[k, 1] - qy
-            if dx * dx + dy * dy < gate2:
-                return True
-    return False
 
 
 @kernel
@@ -135,7 +122,7 @@ def count_near(cells, ref, points, distance):  # pragma: no cover - compiled
     ``ref`` (its cells: :func:`cell_index`)."""
     count = 0
     for i in range(points.shape[0]):
-        if _any_within(cells, ref, points[i, 0], points[i, 1], distance):
+        if _nearest(cells, ref, points[i, 0], points[i, 1], distance, True) >= 0:
             count += 1
     return count
 
@@ -153,7 +140,7 @@ def likelihood_sum(cells, ref, points, sigma, flat, reach):  # pragma: no cover 
         # A point with a partner within ``flat`` scores 1 whichever is nearest (most of a
         # scan placed well); else the nearest within flat + sigma, which touches fewer cells
         # than ``reach`` (the same nearest: one within it is the nearest within reach).
-        if _any_within(cells, ref, qx, qy, min(flat, reach)):
+        if _nearest(cells, ref, qx, qy, min(flat, reach), True) >= 0:
             total += 1.0
             continue
         k = _nearest(cells, ref, qx, qy, min(flat + sigma, reach))
