@@ -302,7 +302,7 @@ class Localizer:
         """Register the scan where ``h`` puts it; a close fit within its gate corrects it,
         a scan that scores less than usual there is a miss."""
         places, near = self.places, self._within
-        if len(near) < MIN_POINTS:
+        if len(near) < MIN_POINTS or len(places.points) < MIN_POINTS:  # nothing to match
             h.misses += 1
             h.streak = 0
             h.scores.append(0.0)
@@ -390,7 +390,7 @@ class Localizer:
         """Whether another pose near ``h`` explains this scan about as well (the search
         only ever looks around the milestones, and a corridor of pilasters may hold none
         where the robot is)."""
-        found = self._near(h, lambda mine: 0.0)
+        found = self._near(h, _least_as_well)
         return found is not None and _as_well(found[1], found[2], GRID_MARGIN)
 
     def _near(self, h: Hypothesis, least: Callable[[float], float]
