@@ -117,26 +117,32 @@ def _nearest(cells, ref, qx, qy, gate, first=False):  # pragma: no cover - compi
 
 
 @kernel
-def count_near(cells, ref, points, distance):  # pragma: no cover - compiled
-    """How many of ``points`` lie closer than ``distance`` to a point of the reference
-    ``ref`` (its cells: :func:`cell_index`)."""
+def count_near(cells, ref, points, x, y, c, s, distance):  # pragma: no cover - compiled
+    """How many of ``points`` placed at (x, y), turned by the angle of cosine ``c`` and sine
+    ``s``, lie closer than ``distance`` to a point of the reference ``ref`` (its cells:
+    :func:`cell_index`)."""
     count = 0
     for i in range(points.shape[0]):
-        if _nearest(cells, ref, points[i, 0], points[i, 1], distance, True) >= 0:
+        qx = x + c * points[i, 0] - s * points[i, 1]
+        qy = y + s * points[i, 0] + c * points[i, 1]
+        if _nearest(cells, ref, qx, qy, distance, True) >= 0:
             count += 1
     return count
 
 
 @kernel
-def likelihood_sum(cells, ref, points, sigma, flat, reach):  # pragma: no cover - compiled
-    """The sum over ``points`` of ``exp(-e^2 / 2 sigma^2)``, ``e`` how much farther than
-    ``flat`` the nearest point of the reference ``ref`` (its cells: :func:`cell_index`)
-    lies; a point with none within ``reach`` adds nothing."""
+def likelihood_sum(cells, ref, points, x, y, c, s, sigma, flat,
+                   reach):  # pragma: no cover - compiled
+    """The sum over ``points`` placed at (x, y), turned by the angle of cosine ``c`` and sine
+    ``s``, of ``exp(-e^2 / 2 sigma^2)``, ``e`` how much farther than ``flat`` the nearest
+    point of the reference ``ref`` (its cells: :func:`cell_index`) lies; a point with none
+    within ``reach`` adds nothing."""
     total = 0.0
     scale = -0.5 / (sigma * sigma)
     for i in range(points.shape[0]):
-        qx = points[i, 0]
-        qy = points[i, 1]
+        # As vmp.types.transform_points places them, to the bit.
+        qx = x + c * points[i, 0] - s * points[i, 1]
+        qy = y + s * points[i, 0] + c * points[i, 1]
         # A point with a partner within ``flat`` scores 1 whichever is nearest (most of a
         # scan placed well); else the nearest within flat + sigma, which touches fewer cells
         # than ``reach`` (the same nearest: one within it is the nearest within reach).

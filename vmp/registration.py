@@ -24,7 +24,7 @@ from vmp.icp_kernel import (
     point_normals,
     run_icp,
 )
-from vmp.types import FloatArray, transform_points
+from vmp.types import FloatArray
 
 __all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "last_gate",
            "likelihood", "register"]
@@ -106,8 +106,8 @@ def explained(reference: Reference, points: FloatArray, pose: FloatArray,
     a k-d tree built for this took 2 ms on a localizer's 13,000-point submap)."""
     if len(points) == 0:
         return 0.0
-    placed = np.ascontiguousarray(transform_points(np.asarray(pose, dtype=np.float64), points))
-    near = count_near(reference.cells, reference.points, placed, float(distance))
+    near = count_near(reference.cells, reference.points, _contiguous(points),
+                      *_placing(pose), float(distance))
     return near / len(points)
 
 
@@ -118,10 +118,22 @@ def likelihood(reference: Reference, points: FloatArray, pose: FloatArray, sigma
     counts beyond ``flat`` plus 3 sigma, where it is 0.011); 0 for no points."""
     if len(points) == 0:
         return 0.0
-    placed = np.ascontiguousarray(transform_points(np.asarray(pose, dtype=np.float64), points))
-    total = likelihood_sum(reference.cells, reference.points, placed, float(sigma),
-                           float(flat), float(flat) + 3.0 * float(sigma))
+    total = likelihood_sum(reference.cells, reference.points, _contiguous(points),
+                           *_placing(pose), float(sigma), float(flat),
+                           float(flat) + 3.0 * float(sigma))
     return total / len(points)
+
+
+def _placing(pose: FloatArray) -> tuple[float, float, float, float]:
+    """``pose``'s x, y and the cosine and sine of its heading, as
+    :func:`vmp.types.transform_points` computes them, for a kernel to place points with (in
+    NumPy, placing a scan's 180 points cost about as much as scoring them)."""
+    x, y, theta = np.asarray(pose, dtype=np.float64)
+    return float(x), float(y), float(np.cos(theta)), float(np.sin(theta))
+
+
+def _contiguous(points: FloatArray) -> FloatArray:
+    return np.ascontiguousarray(points, dtype=np.float64)
 
 
 def register(reference: Reference, points: FloatArray, initial: FloatArray,
