@@ -6,7 +6,9 @@ An iteration on 170 points cost about 140 microseconds in NumPy: a k-d tree quer
 microseconds each. Mapping registers each scan three to five times, so those calls were about
 40 % of mapping's time (docs/benchmarks.md, 2026-12-03). Compiled with Numba, the same arithmetic
 with the nearest neighbour found in a grid of cells as wide as the widest correspondence gate
-(KISS-ICP's voxel hash map, in a sorted array) costs a few microseconds an iteration.
+(KISS-ICP's voxel hash map, in a sorted array; for a dense reference such as a saved map, with a
+table of where each cell starts) costs a few microseconds an iteration. The same cells serve the
+share of a scan a map explains and a scan's likelihood in a map.
 """
 
 from __future__ import annotations

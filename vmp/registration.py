@@ -1,10 +1,11 @@
 """Scan registration: point-to-line ICP of a live scan against a reference scan, with a fit measure.
 
-The reference (a milestone's stored scan, or a few recent scans) is prepared once: a k-d tree of
-its points and a normal per point. :func:`register` then finds the pose of the live scan in the
-reference frame, starting from a guess, and says how well it fits (residual RMS, share of points
-with a partner) and how well the fit constrains each direction (covariance). In a corridor the
-fit leaves the direction along the walls free, and the covariance says so.
+The reference (a milestone's stored scan, a few recent scans, or a saved map) is prepared once:
+its points sorted by grid cell (:mod:`vmp.icp_kernel`) and a normal per point. :func:`register`
+then finds the pose of the live scan in the reference frame, starting from a guess, and says how
+well it fits (residual RMS, share of points with a partner) and how well the fit constrains each
+direction (covariance). In a corridor the fit leaves the direction along the walls free, and the
+covariance says so.
 """
 
 from __future__ import annotations
@@ -73,7 +74,8 @@ class Registration:
 
 
 class Reference:
-    """Reference points ``(N, 2)`` sorted by grid cell, with per-point normals, built once."""
+    """Reference points ``(N, 2)`` sorted by grid cell, with their cells' index
+    (:func:`vmp.icp_kernel.cell_index`) and per-point normals, built once."""
 
     def __init__(self, points: FloatArray) -> None:
         pts = np.asarray(points, dtype=np.float64)
