@@ -188,3 +188,18 @@ def test_a_doubted_place_that_finds_nothing_better_is_doubted_again_only_after_a
     assert not loc._doubted(old) and old.reference_score == pytest.approx(0.80)
     old.scores = deque([0.5] * 20, maxlen=old.scores.maxlen)
     assert loc._doubted(old)
+
+
+def test_a_saved_map_too_small_to_match_makes_every_scan_a_miss():
+    """A map of fewer points than a scan needs to be registered against is nothing to match:
+    the hypothesis misses, rather than a reference of three points being built and trusted."""
+
+    class _Tiny:
+        points = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+
+    loc = Localizer(places=_Tiny())
+    loc._within = np.random.default_rng(2).uniform(-5, 5, (100, 2))
+    h = _hypothesis(0.95, 5)
+    loc._track(h)
+    assert h.misses == 1 and h.streak == 0 and h.scores[-1] == 0.0
+    assert loc._near(h, lambda mine: 0.0) is None

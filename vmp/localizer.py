@@ -400,7 +400,7 @@ class Localizer:
         :data:`ALIAS_APART` from it (map frame) where this scan scores ``least(mine)`` or
         more, that score and ``mine`` (the scan's score at ``h``); None when there is none."""
         live = search_points(self._points)
-        if len(live) < MIN_POINTS or len(self.places.points) == 0:
+        if len(live) < MIN_POINTS or len(self.places.points) < MIN_POINTS:
             return None
         grid = self.places.grid
         mine = grid.score(live, h.pose)
@@ -505,7 +505,8 @@ class Localizer:
         robot faces it at ``pose`` or the other way along it (the first found); None when
         there is none."""
         live = search_points(self._points)
-        if len(live) < MIN_POINTS or len(self.places.path) == 0:
+        if (len(live) < MIN_POINTS or len(self.places.path) == 0
+                or len(self.places.points) < MIN_POINTS):
             return None
         path, grid = self.places.path, self.places.grid
         floor = least(grid.score(live, pose))

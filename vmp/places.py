@@ -97,8 +97,9 @@ class Places:
     @property
     def grid(self) -> SearchGrid:
         """One search grid of the whole map, in the map frame (built on first use): scans are
-        scored in it, and searched for look-alikes anywhere along the path, where no milestone
-        may be (a corridor's look-alike stretches are refused as milestones when mapped)."""
+        searched in it for look-alikes near a place and anywhere along the path, where no
+        milestone may be (a corridor's look-alike stretches are refused as milestones when
+        mapped)."""
         if self._grid is None:
             self._grid = SearchGrid(self.points, RESOLUTION, SIGMA, DEPTH, MAX_WINDOW)
         return self._grid
