@@ -76,3 +76,15 @@ def test_turns_without_odometry_fit_nothing():
     for k in range(200):
         lat.registered(0.1 * k, 0.1 * (k + 1), 0.05)
     assert lat.latency == 0.0 and lat.fits == 0
+
+
+def test_one_sample_does_not_reach_back():
+    """With a single odometry sample, a time after it (within rounding) or before it has no
+    odometry to interpolate: None, never a pose of NaNs (two samples at the same stamp)."""
+    lat = Latency()
+    lat.latency = 0.1
+    lat.odometry(5.0, np.array([1.0, 2.0, 0.5]))
+    assert lat.at(5.1 + 1e-10) is None
+    assert lat.at(5.05) is None
+    lat.odometry(5.2, np.array([2.0, 2.0, 0.5]))
+    np.testing.assert_allclose(lat.at(5.2), [1.5, 2.0, 0.5])
