@@ -34,14 +34,14 @@ from vmp.types import relative, transform_points
 def test_nearest_is_the_k_d_trees_nearest_within_the_gate(gate, dense):
     rng = np.random.default_rng(7)
     # Clusters along lines and, in the sparse reference, a few points far out, on both sides
-    # of the origin (its cells found by binary search; the dense one's in a table).
+    # of the origin (its cells found in a hash table; the dense one's in a table).
     t = rng.uniform(-20, 20, 400)
     pts = np.concatenate([np.stack([t, 0.3 * t + rng.normal(0, 0.02, 400)], 1),
                           rng.uniform(-3, 3, (100, 2))])
     pts = (np.concatenate([pts, rng.uniform(-20, 20, (6000, 2))]) if dense
            else np.concatenate([pts, [[1e4, -1e4], [-7e5, 3.0]]]))
     ref = Reference(pts)
-    assert (ref.cells[1].size > 0) == dense
+    assert (ref.cells[2] >= 0) == dense  # a hashed reference's column is -1
     queries = np.concatenate([ref.points[:300] + rng.normal(0, 0.7 * gate, (300, 2)),
                               rng.uniform(-25, 25, (300, 2)), [[1e4, -1e4 + 0.01]],
                               # exactly on cell borders
@@ -75,6 +75,30 @@ def test_a_dense_references_table_gives_the_rows_the_binary_search_does():
             # The same rows (empty ranges alike, wherever they start).
             assert (range(*_column_rows(ref.cells, col, row_lo, row_hi))
                     == range(*_column_rows(searched, col, row_lo, row_hi)))
+
+
+def test_a_sparse_references_hash_table_gives_the_rows_the_binary_search_does():
+    """A scan's cells (a few hundred spread over 80 m and more, some far out) found in the
+    hash table, cell by cell, give the rows two binary searches do, for every span of rows a
+    gate asks for and beyond (where the searches are used)."""
+    rng = np.random.default_rng(5)
+    angles = rng.uniform(-math.pi, math.pi, 180)
+    ranges = rng.uniform(0.5, 40.0, 180)
+    pts = np.concatenate([np.stack([ranges * np.cos(angles), ranges * np.sin(angles)], 1),
+                          [[1e4, -1e4], [-7e5, 3.0]], rng.normal(0, 0.2, (40, 2))])
+    ref = Reference(pts)
+    keys, table, col0, row0 = ref.cells
+    assert col0 == row0 == -1 and table.shape[1] == 3
+    assert (table[:, 0] >= 0).sum() == len(np.unique(keys))  # every cell, once
+    searched = (keys, np.zeros((0, 0), dtype=np.int64), 0, 0)
+    cols, rows = keys // (1 << 32), keys % (1 << 32)
+    for col in np.unique(np.concatenate([cols, cols - 1, cols + 2])):
+        for row in np.unique(rows[np.abs(cols - col) <= 1])[:30]:
+            for row_lo, row_hi in [(row, row), (row - 1, row + 1), (row - 2, row + 1),
+                                   (row + 1, row + 2), (row - 3, row + 3), (row - 9, row + 9)]:
+                # The same rows (empty ranges alike, wherever they start).
+                assert (range(*_column_rows(ref.cells, col, row_lo, row_hi))
+                        == range(*_column_rows(searched, col, row_lo, row_hi)))
 
 
 def _numpy_icp(reference, pts, initial, corners):

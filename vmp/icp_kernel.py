@@ -29,6 +29,9 @@ _STRIDE = 1 << 32
 # Widens the cells looked at about a point (m): a partner exactly at the gate on a cell border
 # is not lost to rounding.
 _SLACK = 1e-9
+# A column's rows are looked up cell by cell in a hash table (:func:`cell_index`) up to this
+# many (ICP's widest gate touches three), else by binary search.
+HASHED_ROWS = 4
 # A reference gets a table of its cells (:func:`cell_index`) when its bounding box holds at
 # most this many cells a point.
 DENSE = 4
@@ -45,26 +48,71 @@ def cell_index(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
     """What the kernels look a sorted reference's cells up in: its ``keys`` (sorted), and
     where they are dense (a map: at least a point for every four cells of their bounding
     box), a table of where each cell's rows start, columns by rows, with the box's first
-    column and row; else an empty table (a scan: 180 points spread over 80 m).
+    column and row; else a hash table of the cells that hold points (a scan: 180 points
+    spread over 80 m), rows ``(cell key, first row, end)``, ``-1`` keys empty, with the
+    column and row ``-1``.
 
     In a table a cell's rows are found at once; in the keys, by two binary searches a column
     (about 200 ns each among a saved map's 53,000 points, most of what finding a point's
-    nearest neighbour cost: docs/benchmarks.md, seventeenth session)."""
+    nearest neighbour cost: docs/benchmarks.md, seventeenth session). In a hash table, by a
+    probe or two a cell: among a scan's 180 points the two searches were still most of scan
+    odometry's ICP (docs/benchmarks.md, eighteenth session)."""
     keys = np.ascontiguousarray(keys, dtype=np.int64)
-    none = np.zeros((0, 0), dtype=np.int64)
     if len(keys) == 0:
-        return keys, none, 0, 0
+        return keys, np.zeros((0, 0), dtype=np.int64), 0, 0
     cols, rows = keys // _STRIDE, keys % _STRIDE
     col0, row0 = int(cols.min()), int(rows.min())
     n_cols, n_rows = int(cols.max()) - col0 + 1, int(rows.max()) - row0 + 1
     if n_cols * (n_rows + 1) > DENSE * len(keys):
-        return keys, none, 0, 0
+        return keys, _cell_hash(keys), -1, -1
     # Row r of column c: the first point at or after cell (col0 + c, row0 + r); r = n_rows
     # is the column's end.
     starts = ((col0 + np.arange(n_cols, dtype=np.int64))[:, None] * _STRIDE
               + row0 + np.arange(n_rows + 1, dtype=np.int64)[None, :])
     table = np.searchsorted(keys, starts.ravel()).reshape(n_cols, n_rows + 1)
     return keys, np.ascontiguousarray(table, dtype=np.int64), col0, row0
+
+
+def _cell_hash(keys: np.ndarray) -> np.ndarray:
+    """The hash table of sorted ``keys``' cells (:func:`cell_index`): at most half full,
+    probed linearly from :func:`_slot`."""
+    first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    ends = np.r_[first[1:], len(keys)]
+    size = 1 << max(3, int(2 * len(first) - 1).bit_length())
+    table = np.full((size, 3), -1, dtype=np.int64)
+    _fill_hash(table, keys[first], first.astype(np.int64), ends.astype(np.int64))
+    return table
+
+
+@kernel
+def _slot(key, mask):  # pragma: no cover - compiled
+    """Where a cell ``key`` is first looked for in a hash table of ``mask + 1`` rows."""
+    return ((key // _STRIDE) * 73856093 ^ (key % _STRIDE) * 19349663) & mask
+
+
+@kernel
+def _fill_hash(table, cells, starts, ends):  # pragma: no cover - compiled
+    mask = table.shape[0] - 1
+    for i in range(cells.shape[0]):
+        j = _slot(cells[i], mask)
+        while table[j, 0] >= 0:
+            j = (j + 1) & mask
+        table[j, 0] = cells[i]
+        table[j, 1] = starts[i]
+        table[j, 2] = ends[i]
+
+
+@kernel
+def _hashed_rows(table, key):  # pragma: no cover - compiled
+    """The rows ``lo:hi`` of the cell ``key`` in a hash table (:func:`_cell_hash`); -1, -1
+    when it holds no point."""
+    mask = table.shape[0] - 1
+    j = _slot(key, mask)
+    while table[j, 0] >= 0:
+        if table[j, 0] == key:
+            return table[j, 1], table[j, 2]
+        j = (j + 1) & mask
+    return -1, -1
 
 
 @kernel
@@ -79,9 +127,18 @@ def _column_rows(cells, col, row_lo, row_hi):  # pragma: no cover - compiled
     (one range: a column's cells are consecutive in the sort), looked up in ``cells``
     (:func:`cell_index`)."""
     keys, table, col0, row0 = cells
-    if table.shape[0] == 0:
+    if table.shape[0] == 0 or (col0 < 0 and row_hi - row_lo >= HASHED_ROWS):
         return (np.searchsorted(keys, col * _STRIDE + row_lo),
                 np.searchsorted(keys, col * _STRIDE + row_hi, side="right"))
+    if col0 < 0:  # hashed: from the first cell that holds points to the end of the last
+        lo = hi = 0
+        for row in range(row_lo, row_hi + 1):
+            start, end = _hashed_rows(table, col * _STRIDE + row)
+            if start >= 0:
+                if hi == 0:
+                    lo = start
+                hi = end
+        return lo, hi
     c = col - col0
     if c < 0 or c >= table.shape[0]:
         return 0, 0
