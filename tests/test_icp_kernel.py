@@ -9,7 +9,7 @@ from scipy.spatial import cKDTree
 
 from drivers.scenario import load_scenario
 from drivers.simulator import Simulator
-from vmp.icp_kernel import _column_rows, _nearest, fit_covariance, run_icp
+from vmp.icp_kernel import CYCLE, REVISIT, _column_rows, _nearest, fit_covariance, run_icp
 from vmp.registration import (
     CORNER_WEIGHT,
     COVARIANCE_SCALE,
@@ -26,6 +26,7 @@ from vmp.registration import (
     Reference,
     last_gate,
 )
+from vmp.submaps import voxel_thin
 from vmp.types import relative, transform_points
 
 
@@ -101,15 +102,19 @@ def test_a_sparse_references_hash_table_gives_the_rows_the_binary_search_does():
                         == range(*_column_rows(searched, col, row_lo, row_hi)))
 
 
-def _numpy_icp(reference, pts, initial, corners):
-    """The ICP loop as it was written in NumPy before it was compiled (the spec)."""
+def _numpy_icp(reference, pts, initial, corners, cycles=False):
+    """The ICP loop as it was written in NumPy before it was compiled (the spec); with
+    ``cycles``, stopped where a step returns to within the tolerance of where one of the
+    last :data:`CYCLE` steps started."""
     tree = cKDTree(reference.points)
     line_of = np.append(reference.valid, False)
     corner_of = np.append(reference.corner, False)
     x, y, th = initial
     gate, H, rms, wsum, inliers = START_DISTANCE, np.zeros((3, 3)), np.inf, 0.0, 0.0
     converged = False
+    starts = []
     for it in range(1, MAX_ITERATIONS + 1):  # noqa: B007 - returned
+        starts = [*starts[-(CYCLE - 1):], (x, y, th)]
         c, s = math.cos(th), math.sin(th)
         q = pts @ np.array([[c, s], [-s, c]]) + (x, y)
         _, idx = tree.query(q, distance_upper_bound=gate)
@@ -142,6 +147,10 @@ def _numpy_icp(reference, pts, initial, corners):
         if max(abs(dx), abs(dy), abs(dth)) < TOLERANCE:
             converged = True
             break
+        if cycles and any(max(abs(x - a), abs(y - b), abs(
+                (th - t + math.pi) % (2 * math.pi) - math.pi)) < REVISIT
+                for a, b, t in starts):
+            break
     return x, y, th, H, rms, inliers, wsum, it, converged
 
 
@@ -169,6 +178,43 @@ def test_the_compiled_icp_takes_the_numpy_loops_steps(corners):
         assert np.allclose(got[4:7], want[4:7], rtol=1e-9, atol=1e-12)
         compared += 1
     assert compared == 20
+
+
+def test_icp_that_cycles_stops_where_the_cycle_closes():
+    """Against a map whose walls are bands (scans placed with 2 cm of error, thinned to 5 cm,
+    as a saved map is), ICP's correspondences can alternate for ever between neighbouring
+    points of a band: the compiled loop stops where a step comes back to where one began,
+    as the spec does, where without that stop the spec runs on to the cap (asked to: the
+    localizer's registrations against a saved map are)."""
+    sim = Simulator(load_scenario("warehouse"))
+    rng = np.random.default_rng(3)
+    angles = sim.sensor.angles
+
+    def scan(i):
+        r = sim.ranges_at(sim.true_poses[i][None], rng=rng)[0]
+        ok = np.isfinite(r)
+        return np.stack([r[ok] * np.cos(angles[ok]), r[ok] * np.sin(angles[ok])], 1)
+
+    cycled = 0
+    for base in range(50, 1950, 100):
+        world = [transform_points(sim.true_poses[j] + rng.normal(0, [0.02, 0.02, 0.005]),
+                                  scan(j)) for j in range(base, base + 40, 2)]
+        ref = Reference(voxel_thin(np.concatenate(world), 0.05))
+        for _ in range(10):
+            live = scan(base + 20)
+            guess = sim.true_poses[base + 20] + rng.normal(0, [0.05, 0.05, 0.01])
+            got = run_icp(ref.cells, ref.points, ref.normals, ref.valid, ref.corner,
+                          np.ascontiguousarray(live), *guess, False, START_DISTANCE,
+                          MIN_DISTANCE, HUBER, CORNER_WEIGHT, TOLERANCE, MAX_ITERATIONS,
+                          REVISIT)
+            want = _numpy_icp(ref, live, guess, False, cycles=True)
+            assert got[7] == want[7] and got[8] == want[8]
+            assert np.allclose(got[:3], want[:3], rtol=0, atol=1e-9)
+            plain = _numpy_icp(ref, live, guess, False)
+            if plain[7] != want[7]:  # stopped on a cycle: without the stop, on to the cap
+                cycled += 1
+                assert want[7] < plain[7] == MAX_ITERATIONS and not plain[8]
+    assert cycled >= 5
 
 
 def test_a_pose_gone_to_nan_matches_nothing():

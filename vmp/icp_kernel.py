@@ -29,6 +29,17 @@ _STRIDE = 1 << 32
 # Widens the cells looked at about a point (m): a partner exactly at the gate on a cell border
 # is not lost to rounding.
 _SLACK = 1e-9
+# ICP asked to (:func:`run_icp`'s ``revisit``) stops, unconverged, when a step comes back to
+# where one of this many steps before it started: its correspondences alternate between two
+# sets or a few (a point between neighbouring points of a saved map's wall band) and the steps
+# cycle for ever. Such cycles (of 2 to 13 steps) ran 119 of ACES's 498 tracking registrations
+# against its saved map to the 30 iterations' cap, half of that ICP's time (docs/benchmarks.md,
+# eighteenth session).
+CYCLE = 10
+# How near (m, rad) such a step must come back: a cycle closing, not a step shrinking on its
+# way to converge (within ICP's tolerance of 5e-4, 52 of 82 such stops in a simulated band map
+# would have converged, some 2 cm away; within 1e-9, every one ran to the cap, tested).
+REVISIT = 1e-9
 # A column's rows are looked up cell by cell in a hash table (:func:`cell_index`) up to this
 # many (ICP's widest gate touches three), else by binary search.
 HASHED_ROWS = 4
@@ -221,20 +232,25 @@ def likelihood_sum(cells, ref, points, x, y, c, s, sigma, flat,
 
 @kernel
 def run_icp(cells, ref, normals, line, corner, pts, x, y, th, corners, start_gate, min_gate,
-            huber, corner_weight, tolerance, max_iterations):  # pragma: no cover - compiled
+            huber, corner_weight, tolerance, max_iterations,
+            revisit=0.0):  # pragma: no cover - compiled
     """ICP of ``pts`` from (x, y, th): returns x, y, th, the last normal matrix H (3 x 3), the
     weighted residual RMS, the matched count, the summed weights, iterations and whether the
-    last step was below ``tolerance``. (The same steps as the NumPy loop it replaced; see
-    :func:`vmp.registration._icp`.)"""
+    last step was below ``tolerance``; with ``revisit`` above 0, it stops where a step comes
+    back to within ``revisit`` of where one of the last :data:`CYCLE` steps started. (The same
+    steps as the NumPy loop it replaced; see :func:`vmp.registration._icp`.)"""
     n = pts.shape[0]
     gate = start_gate
     converged = False
+    # Where the last CYCLE steps started (a ring): a step back to within ``tolerance`` of one
+    # of them means the iterations cycle (below).
+    seen = np.empty((CYCLE, 3))
     it = 0
     H = np.zeros((3, 3))
     rms = np.inf
     matched_share = 0.0
     wsum = 0.0
-    for it in range(1, max_iterations + 1):  # noqa: B007 - returned
+    for it in range(1, max_iterations + 1):
         c = math.cos(th)
         s = math.sin(th)
         h00 = h01 = h02 = h11 = h12 = h22 = 0.0
@@ -297,6 +313,9 @@ def run_icp(cells, ref, normals, line, corner, pts, x, y, th, corners, start_gat
         ok, dx, dy, dth = _solve_symmetric(h00, h01, h02, h11, h12, h22, g0, g1, g2)
         if not ok:
             break
+        seen[(it - 1) % CYCLE, 0] = x
+        seen[(it - 1) % CYCLE, 1] = y
+        seen[(it - 1) % CYCLE, 2] = th
         # Left-compose the step: rotate the pose about the origin, then translate.
         cd = math.cos(dth)
         sd = math.sin(dth)
@@ -308,7 +327,20 @@ def run_icp(cells, ref, normals, line, corner, pts, x, y, th, corners, start_gat
         if max(abs(dx), abs(dy), abs(dth)) < tolerance:
             converged = True
             break
+        if revisit > 0.0 and _revisits(seen, min(it, CYCLE), x, y, th, revisit):
+            break
     return x, y, th, H, rms, matched_share, wsum, it, converged
+
+
+@kernel
+def _revisits(seen, count, x, y, th, tolerance):  # pragma: no cover - compiled
+    """Whether (x, y, th) lies within ``tolerance`` of one of the first ``count`` poses of
+    the ring ``seen``."""
+    for j in range(count):
+        turn = abs((th - seen[j, 2] + math.pi) % (2 * math.pi) - math.pi)
+        if max(abs(x - seen[j, 0]), abs(y - seen[j, 1]), turn) < tolerance:
+            return True
+    return False
 
 
 @kernel
