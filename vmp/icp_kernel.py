@@ -71,9 +71,8 @@ def cell_index(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
     keys = np.ascontiguousarray(keys, dtype=np.int64)
     if len(keys) == 0:
         return keys, np.zeros((0, 0), dtype=np.int64), 0, 0
-    cols, rows = keys // _STRIDE, keys % _STRIDE
-    col0, row0 = int(cols.min()), int(rows.min())
-    n_cols, n_rows = int(cols.max()) - col0 + 1, int(rows.max()) - row0 + 1
+    col0, row0, col1, row1 = _box(keys)
+    n_cols, n_rows = col1 - col0 + 1, row1 - row0 + 1
     if n_cols * (n_rows + 1) > DENSE * len(keys):
         return keys, _cell_hash(keys), -1, -1
     # Row r of column c: the first point at or after cell (col0 + c, row0 + r); r = n_rows
@@ -84,14 +83,42 @@ def cell_index(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
     return keys, np.ascontiguousarray(table, dtype=np.int64), col0, row0
 
 
-def _cell_hash(keys: np.ndarray) -> np.ndarray:
+@kernel
+def _box(keys):  # pragma: no cover - compiled
+    """The first and last column and row of the cells ``keys`` (sorted, not empty)."""
+    row0 = row1 = keys[0] % _STRIDE
+    for k in keys:
+        row = k % _STRIDE
+        row0 = min(row0, row)
+        row1 = max(row1, row)
+    return keys[0] // _STRIDE, row0, keys[-1] // _STRIDE, row1
+
+
+@kernel
+def _cell_hash(keys):  # pragma: no cover - compiled
     """The hash table of sorted ``keys``' cells (:func:`cell_index`): at most half full,
-    probed linearly from :func:`_slot`."""
-    first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-    ends = np.r_[first[1:], len(keys)]
-    size = 1 << max(3, int(2 * len(first) - 1).bit_length())
+    probed linearly from :func:`_slot`. (In NumPy calls, it took as long as sorting and
+    indexing a scan's points besides: a keyframe is made every few scans.)"""
+    cells = 1
+    for i in range(1, keys.shape[0]):
+        if keys[i] != keys[i - 1]:
+            cells += 1
+    size = 8
+    while size < 2 * cells:
+        size *= 2
     table = np.full((size, 3), -1, dtype=np.int64)
-    _fill_hash(table, keys[first], first.astype(np.int64), ends.astype(np.int64))
+    mask = size - 1
+    start = 0
+    for i in range(1, keys.shape[0] + 1):
+        if i < keys.shape[0] and keys[i] == keys[start]:
+            continue
+        j = _slot(keys[start], mask)
+        while table[j, 0] >= 0:
+            j = (j + 1) & mask
+        table[j, 0] = keys[start]
+        table[j, 1] = start
+        table[j, 2] = i
+        start = i
     return table
 
 
@@ -99,18 +126,6 @@ def _cell_hash(keys: np.ndarray) -> np.ndarray:
 def _slot(key, mask):  # pragma: no cover - compiled
     """Where a cell ``key`` is first looked for in a hash table of ``mask + 1`` rows."""
     return ((key // _STRIDE) * 73856093 ^ (key % _STRIDE) * 19349663) & mask
-
-
-@kernel
-def _fill_hash(table, cells, starts, ends):  # pragma: no cover - compiled
-    mask = table.shape[0] - 1
-    for i in range(cells.shape[0]):
-        j = _slot(cells[i], mask)
-        while table[j, 0] >= 0:
-            j = (j + 1) & mask
-        table[j, 0] = cells[i]
-        table[j, 1] = starts[i]
-        table[j, 2] = ends[i]
 
 
 @kernel
