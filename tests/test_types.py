@@ -184,3 +184,24 @@ def test_the_widest_variance_is_the_larger_eigenvalue_of_the_position_block():
     assert widest_variance(np.diag([0.5, 2.0, 9.0])) == 2.0  # the heading's is not a position's
     assert widest_variance(np.zeros((3, 3))) == 0.0
     assert widest_variance(np.diag([-1e-18, -2e-18, 0.0])) == 0.0  # rounding's, not a variance
+
+
+def test_one_pose_takes_the_same_bits_as_the_arrays():
+    """A single pose is composed in Python floats (a third of the time), to the bit what the
+    arrays' path gives, headings at and around +-pi included; a heading that is not finite
+    gives NaNs there too, not an error."""
+    rng = np.random.default_rng(9)
+    a = rng.uniform(-50, 50, (20000, 3))
+    b = rng.uniform(-50, 50, (20000, 3))
+    a[::7, 2] = rng.choice([math.pi, -math.pi, 0.0, math.pi / 2, 3 * math.pi,
+                            np.nextafter(math.pi, 0)], len(a[::7]))
+    b[::5, 2] = rng.choice([math.pi, -math.pi, 2 * math.pi], len(b[::5]))
+    batch = compose(a, b), relative(a, b), inverse(a)
+    one = (np.array([compose(p, q) for p, q in zip(a, b, strict=True)]),
+           np.array([relative(p, q) for p, q in zip(a, b, strict=True)]),
+           np.array([inverse(p) for p in a]))
+    for got, want in zip(one, batch, strict=True):
+        assert np.array_equal(got, want)
+    with np.errstate(invalid="ignore"):
+        assert np.isnan(compose([0.0, 0.0, math.inf], [1.0, 0.0, 0.0])).all()
+        assert np.isnan(inverse([1.0, 0.0, math.nan])).all()

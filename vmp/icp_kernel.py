@@ -157,14 +157,14 @@ def _column_rows(cells, col, row_lo, row_hi):  # pragma: no cover - compiled
         return (np.searchsorted(keys, col * _STRIDE + row_lo),
                 np.searchsorted(keys, col * _STRIDE + row_hi, side="right"))
     if col0 < 0:  # hashed: from the first cell that holds points to the end of the last
-        lo = hi = 0
+        lo = hi = -1
         for row in range(row_lo, row_hi + 1):
             start, end = _hashed_rows(table, col * _STRIDE + row)
             if start >= 0:
-                if hi == 0:
+                if lo < 0:
                     lo = start
                 hi = end
-        return lo, hi
+        return (lo, hi) if lo >= 0 else (0, 0)
     c = col - col0
     if c < 0 or c >= table.shape[0]:
         return 0, 0
@@ -257,7 +257,7 @@ def run_icp(cells, ref, normals, line, corner, pts, x, y, th, corners, start_gat
     n = pts.shape[0]
     gate = start_gate
     converged = False
-    # Where the last CYCLE steps started (a ring): a step back to within ``tolerance`` of one
+    # Where the last CYCLE steps started (a ring): a step back to within ``revisit`` of one
     # of them means the iterations cycle (below).
     seen = np.empty((CYCLE, 3))
     it = 0
@@ -348,12 +348,12 @@ def run_icp(cells, ref, normals, line, corner, pts, x, y, th, corners, start_gat
 
 
 @kernel
-def _revisits(seen, count, x, y, th, tolerance):  # pragma: no cover - compiled
-    """Whether (x, y, th) lies within ``tolerance`` of one of the first ``count`` poses of
-    the ring ``seen``."""
+def _revisits(seen, count, x, y, th, within):  # pragma: no cover - compiled
+    """Whether (x, y, th) lies within ``within`` of one of the first ``count`` poses of the
+    ring ``seen``."""
     for j in range(count):
         turn = abs((th - seen[j, 2] + math.pi) % (2 * math.pi) - math.pi)
-        if max(abs(x - seen[j, 0]), abs(y - seen[j, 1]), turn) < tolerance:
+        if max(abs(x - seen[j, 0]), abs(y - seen[j, 1]), turn) < within:
             return True
     return False
 

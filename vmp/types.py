@@ -43,8 +43,9 @@ def _wrap1(theta: float) -> float:
     """:func:`wrap_angle` of one angle. The pose operations below take this path for single
     poses (about 90,000 calls mapping the Intel part), in Python floats: a call through 0-d
     arrays cost 8-10 microseconds, through NumPy scalars 2, and compose 3 where it now costs
-    1 (the same bits: IEEE arithmetic, and NumPy's cosine, sine and remainder agree with
-    Python's on this machine, tested)."""
+    1 (the same bits as the arrays' path: IEEE arithmetic, and NumPy's cosine, sine and
+    remainder agree with Python's; tested). A heading that is not finite takes the arrays'
+    path, where it gives NaNs rather than an error."""
     return (theta + math.pi) % (2.0 * math.pi) - math.pi
 
 
@@ -65,7 +66,7 @@ def rotation_matrix(theta: ArrayLike) -> FloatArray:
 def compose(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """``a (+) b``: pose ``b``, given in the frame of ``a``, in the frame ``a`` is given in."""
     a, b = _as_poses(a), _as_poses(b)
-    if a.ndim == 1 and b.ndim == 1:
+    if a.ndim == 1 and b.ndim == 1 and math.isfinite(a[2]):
         (ax, ay, at), (bx, by, bt) = a.tolist(), b.tolist()
         c, s = math.cos(at), math.sin(at)
         return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap1(at + bt)])
@@ -78,7 +79,7 @@ def compose(a: ArrayLike, b: ArrayLike) -> FloatArray:
 def inverse(a: ArrayLike) -> FloatArray:
     """``(-) a``: the pose of the outer frame seen from ``a``, so ``a (+) inverse(a) = 0``."""
     a = _as_poses(a)
-    if a.ndim == 1:
+    if a.ndim == 1 and math.isfinite(a[2]):
         ax, ay, at = a.tolist()
         c, s = math.cos(at), math.sin(at)
         return np.array([-c * ax - s * ay, s * ax - c * ay, _wrap1(-at)])
@@ -133,7 +134,7 @@ def inverse_covariance(a: ArrayLike, cov_a: ArrayLike) -> FloatArray:
 def relative(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """``(-) a (+) b``: pose ``b`` expressed in the frame of pose ``a``."""
     a, b = _as_poses(a), _as_poses(b)
-    if a.ndim == 1 and b.ndim == 1:
+    if a.ndim == 1 and b.ndim == 1 and math.isfinite(a[2]):
         (ax, ay, at), (bx, by, bt) = a.tolist(), b.tolist()
         c, s = math.cos(at), math.sin(at)
         dx, dy = bx - ax, by - ay
