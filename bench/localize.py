@@ -18,8 +18,9 @@ the second half localized in that map from no pose, and scored on the relations 
 stamps both lie in the second half, beside the whole log mapped in one go on the same
 relations, and how many of its scans were localized where the first half passed (within
 1 m, facing within 45 degrees: elsewhere its map may not hold what a scan sees). Also the
-tracking speed against the mapping speed (scans per second of each run
-loop, the full mapping run's), and two second sessions scored on all the log's relations:
+tracking speed against the mapping speed (scans per second of the localizer's steps that
+began and ended localized, and of the whole log's mapping; ``--repeat`` runs of each in turn,
+medians), and two second sessions scored on all the log's relations:
 the second half mapped on in the first half's map (``vmp map --continue``), and both halves
 mapped apart and merged (``vmp merge``).
 
@@ -189,7 +190,22 @@ def passed(trajectory: FloatArray, half: int) -> np.ndarray:
     return (dist <= PASSED_XY) & (turn <= PASSED_THETA)
 
 
-def real(only: str | None) -> list[dict]:
+def speed_rounds(name: str, frames: list, half: int, first_map: MapData,
+                 rounds: int) -> list[tuple[float, float]]:
+    """``rounds`` more (mapping, tracking) rates in scans per second, in turn: the whole log
+    mapped, then its second half localized in its first half's saved map. (One run's ratio
+    says little on a shared machine: this one's mapping of ACES swung between 776 and 959
+    scans a second in one session; docs/benchmarks.md, eighteenth session.)"""
+    out = []
+    for _ in range(rounds):
+        mapped = whole(MappingRun(FrameList(frames, name)).run())
+        tracked = whole(LocalizationRun(first_map, FrameList(frames[half:], name)).run())
+        out.append((mapped.scans / mapped.mapping_time,
+                    tracked.metrics().get("tracking: scans per second", math.nan)))
+    return out
+
+
+def real(only: str | None, repeat: int = 3) -> list[dict]:
     rows = []
     for name, log, rel_path in logs(only):
         frames = list(open_source(str(log)))
@@ -199,7 +215,8 @@ def real(only: str | None) -> list[dict]:
         inside = relations[(np.minimum(relations[:, 0], relations[:, 1]) >= t0)]
         full = whole(MappingRun(FrameList(frames, name)).run())
         first = whole(MappingRun(FrameList(frames[:half], name)).run())
-        res = whole(LocalizationRun(saved(first), FrameList(frames[half:], name)).run())
+        first_map = saved(first)
+        res = whole(LocalizationRun(first_map, FrameList(frames[half:], name)).run())
         loc = res.localized
         e_full = relation_error(full.stamps, full.trajectory, inside)
         e_loc = relation_error(res.stamps[loc], res.poses[loc], inside)
@@ -213,7 +230,14 @@ def real(only: str | None) -> list[dict]:
             raise SystemExit(f"{name}: the whole-log map placed {full.scans} of "
                              f"{len(frames)} scans; cannot pair its poses with the halves")
         seen = passed(full.trajectory, half)
-        map_rate = full.scans / full.mapping_time
+        # The speeds: this run's pair and repeat - 1 more pairs in turn; medians, and the
+        # median of the pairs' ratios.
+        pairs = [(full.scans / full.mapping_time,
+                  res.metrics().get("tracking: scans per second", math.nan))]
+        pairs += speed_rounds(name, frames, half, first_map, repeat - 1)
+        map_rate = statistics.median(m for m, _ in pairs)
+        tracking = statistics.median(t for _, t in pairs)
+        ratios = [t / m for m, t in pairs]
         # A second session: the second half mapped on in the first half's map, and the two
         # halves mapped apart and merged (what 'vmp map --continue' and 'vmp merge' do).
         cont = whole(MappingRun(FrameList(frames[half:], name), saved=saved(first)).run())
@@ -227,7 +251,7 @@ def real(only: str | None) -> list[dict]:
                "lost": sum(s is State.LOST for s in res.states), "relations": len(inside),
                "used": e_loc.used, "loc": e_loc, "full": e_full, "same": e_same,
                "rate": res.scans / res.time, "map_rate": map_rate, "all": e_all,
-               "tracking": res.metrics().get("tracking: scans per second", math.nan),
+               "tracking": tracking, "ratio": statistics.median(ratios), "ratios": ratios,
                "cont": e_cont, "merged": e_merged, "passed": float(seen.mean()),
                "passed_localized": float(loc[seen].mean()) if seen.any() else math.nan}
         print(f"{name}: second half ({res.scans} scans) localized after {first_fix} scans, "
@@ -240,8 +264,9 @@ def real(only: str | None) -> list[dict]:
               f"deg on the same, {e_full.trans_mean:.4f} m, "
               f"{math.degrees(e_full.rot_mean):.2f} deg on {e_full.used}; localizing "
               f"{row['rate']:.0f} scans/s, tracking "
-              f"{row['tracking']:.0f}, mapping {map_rate:.0f} scans/s (tracking "
-              f"x{row['tracking'] / map_rate:.1f}); whole log: mapped "
+              f"{row['tracking']:.0f}, mapping {map_rate:.0f} scans/s (medians of "
+              f"{len(pairs)} pairs in turn; tracking x{row['ratio']:.2f} of mapping, the "
+              f"median of " + " / ".join(f"x{r:.2f}" for r in ratios) + "); whole log: mapped "
               f"{e_all.trans_mean:.4f} m, continued {e_cont.trans_mean:.4f} m "
               f"({e_cont.used} relations), merged {e_merged.trans_mean:.4f} m "
               f"({e_merged.used})", flush=True)
@@ -249,7 +274,7 @@ def real(only: str | None) -> list[dict]:
     return rows
 
 
-def table(sim: list[dict], rows: list[dict], runs: int) -> str:
+def table(sim: list[dict], rows: list[dict], runs: int, repeat: int = 3) -> str:
     what = "simulated worlds" if sim else "real logs"
     cmd = "--no-real" if sim else "--no-sim"
     lines = [f"## Localization in a saved map: {what}", "",
@@ -292,7 +317,8 @@ def table(sim: list[dict], rows: list[dict], runs: int) -> str:
                   "passed: scans, localized | lost | relations used | "
                   "localized: trans (m), rot (deg) | whole log mapped, the same relations | "
                   "whole log mapped, all relations of the second half | speed: "
-                  "localizing, tracking, mapping (scans/s) | tracking / mapping |",
+                  "localizing, tracking, mapping (scans/s; tracking and mapping medians of "
+                  f"{repeat} runs in turn) | tracking / mapping (median; each run's) |",
                   "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
             a, b, c = r["loc"], r["same"], r["full"]
@@ -303,7 +329,8 @@ def table(sim: list[dict], rows: list[dict], runs: int) -> str:
                          f"{math.degrees(b.rot_mean):.2f} | {c.trans_mean:.4f}, "
                          f"{math.degrees(c.rot_mean):.2f} | {r['rate']:.0f}, "
                          f"{r['tracking']:.0f}, {r['map_rate']:.0f} | "
-                         f"x{r['tracking'] / r['map_rate']:.1f} |")
+                         f"x{r['ratio']:.2f} (" + ", ".join(f"{x:.2f}" for x in r["ratios"])
+                         + ") |")
         lines.append("")
         lines += ["Second sessions on the same logs, scored on every relation of the log: the "
                   "second half mapped on in the first half's map (`vmp map --continue`), and "
@@ -327,13 +354,18 @@ def main() -> None:
     ap.add_argument("--no-sim", action="store_true", help="no simulated runs")
     ap.add_argument("--no-real", action="store_true", help="no real logs")
     ap.add_argument("--only", help="only this real log (intel, aces, fr079)")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="runs of mapping and tracking in turn per real log for their speeds "
+                         "(default 3; medians)")
     args = ap.parse_args()
+    if args.repeat < 1:
+        ap.error(f"--repeat must be 1 or more, got {args.repeat}")
     sim = [] if args.no_sim else simulated(args.sim, args.runs)
-    rows = [] if args.no_real else real(args.only)
+    rows = [] if args.no_real else real(args.only, args.repeat)
     if sim and set(args.sim) == set(SIM) and args.runs == 20:
         write_section("localize-sim", table(sim, [], args.runs))
     if rows and args.only is None:
-        write_section("localize-real", table([], rows, args.runs))
+        write_section("localize-real", table([], rows, args.runs, args.repeat))
 
 
 if __name__ == "__main__":
