@@ -581,26 +581,30 @@ def _over_common_scans(h: Hypothesis, other: Hypothesis) -> tuple[float, float]:
 def _as_well(score: float, best: float, margin: float = RIVAL_MARGIN) -> bool:
     """Whether a place scoring ``score`` explains the scans about as well as one scoring
     ``best``: it leaves fewer than :data:`RIVAL_FACTOR` times the share of points the best
-    leaves unexplained, plus :data:`RIVAL_MARGIN`."""
+    leaves unexplained, plus ``margin`` (:data:`RIVAL_MARGIN` for exact scores,
+    :data:`GRID_MARGIN` for a search grid's)."""
     return 1.0 - score < RIVAL_FACTOR * (1.0 - best) + margin
 
 
 def _clearly_better(score: float, than: float, margin: float = RIVAL_MARGIN) -> bool:
     """Whether a place scoring ``score`` explains the scans clearly better than one scoring
     ``than``: it leaves unexplained less than the other's share over :data:`RIVAL_FACTOR`,
-    less :data:`RIVAL_MARGIN`."""
+    less ``margin`` (:data:`RIVAL_MARGIN` for exact scores, :data:`GRID_MARGIN` for a
+    search grid's)."""
     return 1.0 - score < (1.0 - than) / RIVAL_FACTOR - margin
 
 
 def _least_clearly_better(than: float) -> float:
     """The score above which a place explains the scans clearly better than one scoring
-    ``than`` (:func:`_clearly_better`), for a search to prune below."""
+    ``than`` (:func:`_clearly_better` with :data:`GRID_MARGIN`), for a grid search to prune
+    below."""
     return 1.0 - ((1.0 - than) / RIVAL_FACTOR - GRID_MARGIN)
 
 
 def _least_as_well(best: float) -> float:
     """The score above which a place explains the scans about as well as one scoring
-    ``best`` (:func:`_as_well`), for a search to prune below."""
+    ``best`` (:func:`_as_well` with :data:`GRID_MARGIN`), for a grid search to prune
+    below."""
     return 1.0 - (RIVAL_FACTOR * (1.0 - best) + GRID_MARGIN)
 
 
