@@ -111,6 +111,24 @@ def test_scan_frame_marks_no_return_explicitly():
     assert f.num_beams == 3
 
 
+def test_scan_points_are_the_ranges_along_each_scanners_beams():
+    # The beams' directions are kept per scanner: frames of two scanners, in turn, each get
+    # their own, to the bit as worked out from the angles.
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        for n, start, step in ((181, -math.pi / 2, math.pi / 180), (7, -1.0, 0.3)):
+            ranges = rng.uniform(0.1, 7.9, n)
+            ranges[rng.random(n) < 0.2] = np.inf
+            f = frame(ranges, angle_min=start, angle_increment=step)
+            a = f.angles[f.returned]
+            r = f.ranges[f.returned]
+            want = np.stack([r * np.cos(a), r * np.sin(a)], axis=-1)
+            got = f.points()
+            assert got.shape == want.shape and np.array_equal(got, want)
+            got[:] = 0.0  # the caller's to change: the next frame's points are not
+    assert frame([np.inf, np.inf, np.inf]).points().shape == (0, 2)
+
+
 @pytest.mark.parametrize(
     "ranges, message",
     [([1.0, np.nan], "NaN"), ([1.0, 0.0], "positive"), ([1.0, -2.0], "positive"),

