@@ -203,13 +203,3 @@ def test_a_saved_map_too_small_to_match_makes_every_scan_a_miss():
     loc._track(h)
     assert h.misses == 1 and h.streak == 0 and h.scores[-1] == 0.0
     assert loc._near(h, lambda mine: 0.0) is None
-
-
-def test_the_localizers_scan_odometry_stops_where_its_icp_cycles_and_a_mappers_does_not():
-    """Tracking's keyframe ICP stops at a cycle (vmp.icp_kernel.CYCLE): 8 % of ACES's ran to
-    the cap. A mapper's runs on: its maps depend on which pose of a cycle ICP ends on."""
-    from vmp.config import MappingConfig
-    from vmp.frontend import FrontEnd
-
-    assert Localizer(places=_NoLookAlikes()).front.scan_odometry.cycles
-    assert not FrontEnd(MappingConfig()).scan_odometry.cycles
