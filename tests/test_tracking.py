@@ -203,3 +203,75 @@ def test_a_saved_map_too_small_to_match_makes_every_scan_a_miss():
     loc._track(h)
     assert h.misses == 1 and h.streak == 0 and h.scores[-1] == 0.0
     assert loc._near(h, lambda mine: 0.0) is None
+
+
+class _Field:
+    """A saved map that explains a scan fully at x <= 1 m and half of it beyond (its score
+    depends on where a scan is placed only)."""
+
+    points = np.zeros((0, 2))
+
+    @staticmethod
+    def score(points: np.ndarray, pose: np.ndarray) -> float:
+        return 1.0 if pose[0] <= 1.0 else 0.5
+
+
+def test_a_place_proposed_later_is_scored_on_the_scans_before_it_carried_back():
+    """The robot drove 0.5 m a scan. A place proposed now is scored where the scans before
+    would have been, 0.5 m back each, oldest first; the first that misses (scores under
+    KEEP_RATIO of its score now) counts 0 and ends its past."""
+    loc = Localizer(places=_Field())
+    step = np.array([0.5, 0.0, 0.0])
+    for _ in range(6):
+        loc._recent.append((np.ones((10, 2)), step))
+    # Every scan before explained where a place at x = 1 puts it (x = 0.5, 0, -0.5, ...).
+    assert loc._past(np.array([1.0, 0.0, 0.0]), 1.0) == [1.0] * 5
+    # From x = 2.5: the scans before at 2.0 and 1.5 score half (a miss against 1.0 at 0.8),
+    # so the first back ends the past with a 0.
+    assert loc._past(np.array([2.5, 0.0, 0.0]), 1.0) == [0.0]
+    # Scored 0.5 now, the same half scores are no miss, back to x = 1 and before it.
+    assert loc._past(np.array([2.5, 0.0, 0.0]), 0.5) == [1.0, 1.0, 1.0, 0.5, 0.5]
+
+
+def test_a_look_alike_that_misses_the_scans_before_is_no_rival():
+    """Two places explain the scans since the second was proposed equally well; the scans
+    before tell them apart (the simulated warehouse's bays 2.5 m along an aisle look alike
+    once the aisle's end is out of view)."""
+    best = _hypothesis(1.0, 12)
+    alike = _hypothesis(1.0, 3)
+    assert localizer_module._rival(alike, best)  # compared over its 3 scans only
+    alike.past = [0.0, 1.0, 1.0, 1.0]  # it misses a scan the best one explains
+    assert not localizer_module._rival(alike, best)
+    alike.past = [1.0] * 9
+    assert localizer_module._rival(alike, best)
+
+
+def test_scans_neither_place_explains_are_left_out_of_their_comparison():
+    """A robot carried off misses the scans before at every place it may have been carried
+    to: those misses say nothing of which place is the better."""
+    right, alike = _hypothesis(1.0, 4), _hypothesis(0.98, 4)
+    right.past, alike.past = [0.0, 1.0], [0.0, 0.98]
+    mine, theirs = localizer_module._over_common_scans(right, alike)
+    assert mine == pytest.approx(1.0) and theirs == pytest.approx(0.98)
+    # A scan only one of them misses counts.
+    alike.past = [1.0, 0.0]
+    mine, theirs = localizer_module._over_common_scans(right, alike)
+    assert mine == pytest.approx(5 / 6) and theirs == pytest.approx((1 + 4 * 0.98) / 6)
+
+
+def test_a_look_alike_found_later_is_told_apart_by_the_scans_before_it():
+    """The simulated warehouse, seed 110, started at scan 1374: a look-alike found a few scans
+    after the right place scored alike on every scan since, and the start was declared after
+    52 scans. Compared over the scans before it too, within the bench's 30 (after 6)."""
+    r = mapped("warehouse")
+    places = Places(r.pipeline.map, r.pipeline.milestones, r.trajectory)
+    sim = open_source("warehouse", seed=110)
+    frames = list(sim)
+    truth = sim.reference().poses
+    loc = Localizer(places)
+    for k in range(1374, 1374 + 30):
+        step = loc.step(frames[k])
+        if step.state is State.LOCALIZED:
+            break
+    assert step.state is State.LOCALIZED
+    assert np.hypot(*(step.pose[:2] - truth[k][:2])) < 0.5
