@@ -162,3 +162,23 @@ def test_a_signal_at_a_random_moment_leaves_a_complete_folder_with_a_loadable_ma
     mapped = len(np.loadtxt(folder / "trajectory.tum", ndmin=2))  # one scan: one row
     assert 0 < mapped < 2000
     assert len(saved.map) == mapped
+
+
+def test_a_saved_map_another_run_has_mapped_on_is_refused_clearly(tmp_path):
+    """A run maps on in the saved map it is given; given the same one again, a run would
+    find more scans than poses in it (a NumPy broadcast error deep in the localizer)."""
+    from vmp.errors import InputError
+    from vmp.localization import LocalizationRun
+    from vmp.mapfile import load_map, save_map
+
+    first = MappingRun(open_source("lab", scans=300)).run()
+    p = first.pipeline
+    save_map(tmp_path / "a.vmpmap", p.map, p.milestones, p.back.graph, {}, first.trajectory)
+    saved = load_map(tmp_path / "a.vmpmap")
+    second = MappingRun(open_source("lab", seed=4, scans=200), saved=saved).run()
+    assert second.pipeline.stats["scans before localized in the saved map"] < 200
+    for again in (lambda: MappingRun(open_source("lab", seed=5, scans=50), saved=saved),
+                  lambda: LocalizationRun(saved, open_source("lab", seed=5, scans=50))):
+        with pytest.raises(InputError, match="load it again"):
+            again()
+    MappingRun(open_source("lab", seed=5, scans=50), saved=load_map(tmp_path / "a.vmpmap"))

@@ -66,11 +66,17 @@ class MapData:
                 for k in range(len(vmap))]  # one frame object per stored scan
 
     def check_beams(self, geometry: BeamGeometry, label: str) -> None:
-        """Refuse scans of another scanner than the map's (other beams) with a clear error."""
+        """Refuse scans of another scanner than the map's (other beams) with a clear error,
+        and a map another run has mapped on since it was loaded (:class:`vmp.run.MappingRun`
+        maps on in the map it is given: its scans outnumber the poses loaded with it)."""
         if not geometry.same_beams(self.map.geometry):
             raise InputError(f"{label}: {geometry.describe()}, the map's scanner "
                              f"{self.map.geometry.describe()}: use the scanner the map was "
                              "made with")
+        if len(self.map) != len(self.trajectory):
+            raise InputError(f"{label}: the saved map holds {len(self.map)} scans but "
+                             f"{len(self.trajectory)} poses: a run has mapped on in it since "
+                             "it was loaded; load it again for another run")
 
 
 def save_map(path: str | os.PathLike[str], vmap: VectorMap, milestones: MilestoneManager,

@@ -93,7 +93,7 @@ class MappingRun(StoppableRun):
     no pose needed), and from the first localized scan on they are mapped into it, the new
     milestones joined to the old ones where the robot was found. The result holds both
     sessions' scans (before this one, the saved map's poses stand in for the filter's and
-    the odometry's).
+    the odometry's). The run maps on in ``saved`` itself: load the map again for another.
 
     With ``checkpoint`` (a file) and ``every``, the run writes its whole state there that
     often (:mod:`vmp.checkpoint`); with ``resume`` (such a file) it starts from that state,
