@@ -275,3 +275,17 @@ def test_a_look_alike_found_later_is_told_apart_by_the_scans_before_it():
             break
     assert step.state is State.LOCALIZED
     assert np.hypot(*(step.pose[:2] - truth[k][:2])) < 0.5
+
+
+def test_a_trusted_place_is_outdone_over_the_scans_since_the_robot_may_have_been_elsewhere():
+    """After a kidnap the place it was carried to misses the scans before it (the robot was
+    at the trusted place then): that miss does not count against it, the scans it explains
+    before it was proposed do; a place declared before is compared over the scans followed."""
+    trusted = _hypothesis(1.0, 20, declared=True)
+    trusted.scores = deque([1.0] * 14 + [0.6] * 6, maxlen=trusted.scores.maxlen)
+    carried = _hypothesis(1.0, 3)
+    carried.past = [0.0, 1.0, 1.0, 1.0]  # missed the scan before the kidnap, fits the 3 after
+    mine, theirs = localizer_module._over_scans_since(carried, trusted)
+    assert (mine, theirs) == (1.0, pytest.approx(0.6))
+    # Declared before: compared over the scans both were followed, not over any past.
+    assert localizer_module._over_common_scans(carried, trusted) == (1.0, pytest.approx(0.6))
