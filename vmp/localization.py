@@ -158,6 +158,7 @@ class LocalizationRun(StoppableRun):
                  initial_pose: FloatArray | None = None, progress: Progress | None = None,
                  label: str | None = None) -> None:
         saved.check_beams(source.geometry, label or source.name)
+        saved.check_as_loaded(label or source.name)
         self.saved, self.source = saved, source
         self.config = config or MappingConfig()
         self.view: View = view or NullView()

@@ -658,8 +658,8 @@ def _over_common_scans(h: Hypothesis, other: Hypothesis) -> tuple[float, float]:
     before it was carried off, and the places it may have been carried to miss those scans
     (compared over them, the old place stayed a rival of the right one for up to 7 scans more
     after the simulated warehouse's kidnaps)."""
-    if h.declared or other.declared:
-        return _over_followed_scans(h, other)
+    if h.declared or other.declared:  # over the scans both were followed
+        return _compared(list(h.scores), list(other.scores), unexplained=True)
     return _compared(h.history, other.history)
 
 
@@ -673,22 +673,16 @@ def _over_scans_since(h: Hypothesis, trusted: Hypothesis) -> tuple[float, float]
     before the kidnap may fit the new place too: seed 123's stayed at the old place for 41
     scans, against 30 compared over the scans followed only.)"""
     past = h.past[1:] if h.past and h.past[0] == 0.0 else h.past
-    mine, theirs = (past + list(h.scores))[-WINDOW:], list(trusted.scores)
-    n = min(len(mine), len(theirs))
-    return float(np.mean(mine[-n:])), float(np.mean(theirs[-n:]))
+    return _compared((past + list(h.scores))[-WINDOW:], list(trusted.scores), unexplained=True)
 
 
-def _over_followed_scans(h: Hypothesis, other: Hypothesis) -> tuple[float, float]:
-    """The mean scores of ``h`` and ``other`` over the last scans both were followed."""
-    n = min(len(h.scores), len(other.scores))
-    return float(np.mean(list(h.scores)[-n:])), float(np.mean(list(other.scores)[-n:]))
-
-
-def _compared(mine: list[float], theirs: list[float]) -> tuple[float, float]:
+def _compared(mine: list[float], theirs: list[float], unexplained: bool = False
+              ) -> tuple[float, float]:
     """The means of two places' scores over the last scans both have, but for those
-    neither explains (:func:`_over_common_scans`)."""
+    neither explains unless ``unexplained`` (:func:`_over_common_scans`)."""
     n = min(len(mine), len(theirs))
-    pairs = [(a, b) for a, b in zip(mine[-n:], theirs[-n:], strict=True) if a or b]
+    pairs = [(a, b) for a, b in zip(mine[-n:], theirs[-n:], strict=True)
+             if unexplained or a or b]
     if not pairs:
         return 0.0, 0.0
     return float(np.mean([a for a, _ in pairs])), float(np.mean([b for _, b in pairs]))

@@ -66,13 +66,16 @@ class MapData:
                 for k in range(len(vmap))]  # one frame object per stored scan
 
     def check_beams(self, geometry: BeamGeometry, label: str) -> None:
-        """Refuse scans of another scanner than the map's (other beams) with a clear error,
-        and a map another run has mapped on since it was loaded (:class:`vmp.run.MappingRun`
-        maps on in the map it is given: its scans outnumber the poses loaded with it)."""
+        """Refuse scans of another scanner than the map's (other beams) with a clear error."""
         if not geometry.same_beams(self.map.geometry):
             raise InputError(f"{label}: {geometry.describe()}, the map's scanner "
                              f"{self.map.geometry.describe()}: use the scanner the map was "
                              "made with")
+
+    def check_as_loaded(self, label: str) -> None:
+        """Refuse a map another run has mapped on since it was loaded, with a clear error
+        (:class:`vmp.run.MappingRun` maps on in the map it is given: its scans then outnumber
+        the poses loaded with it)."""
         if len(self.map) != len(self.trajectory):
             raise InputError(f"{label}: the saved map holds {len(self.map)} scans but "
                              f"{len(self.trajectory)} poses: a run has mapped on in it since "

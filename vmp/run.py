@@ -107,6 +107,7 @@ class MappingRun(StoppableRun):
                  every: Every | None = None, resume: Path | None = None) -> None:
         if saved is not None:
             saved.check_beams(source.geometry, label or source.name)
+            saved.check_as_loaded(label or source.name)
         self.saved = saved
         self.source = source
         self.config = config or MappingConfig()

@@ -197,7 +197,7 @@ class BeamGeometry:
     @property
     def angles(self) -> FloatArray:
         """Beam angles in the scanner frame (radians)."""
-        return self.angle_min + self.angle_increment * np.arange(self.num_beams)
+        return beam_angles(self.num_beams, self.angle_min, self.angle_increment)
 
     @property
     def field_of_view(self) -> float:
@@ -291,7 +291,7 @@ class ScanFrame:
     @property
     def angles(self) -> FloatArray:
         """Beam angles in the scanner frame (radians)."""
-        return self.angle_min + self.angle_increment * np.arange(self.ranges.size)
+        return beam_angles(self.ranges.size, self.angle_min, self.angle_increment)
 
     @property
     def angle_max(self) -> float:
@@ -327,11 +327,17 @@ class ScanFrame:
         return out
 
 
+def beam_angles(beams: int, angle_min: float, angle_increment: float) -> FloatArray:
+    """The angles (rad, scanner frame) of ``beams`` beams from ``angle_min`` on, every
+    ``angle_increment``."""
+    return angle_min + angle_increment * np.arange(beams)
+
+
 @lru_cache(maxsize=16)
 def _directions(beams: int, angle_min: float, angle_increment: float
                 ) -> tuple[FloatArray, FloatArray]:
-    """The cosines and sines (read-only) of the beam angles of :attr:`ScanFrame.angles`."""
-    angles = angle_min + angle_increment * np.arange(beams)
+    """The cosines and sines (read-only) of :func:`beam_angles`."""
+    angles = beam_angles(beams, angle_min, angle_increment)
     cos, sin = np.cos(angles), np.sin(angles)
     cos.flags.writeable = sin.flags.writeable = False
     return cos, sin
