@@ -44,7 +44,7 @@ def search_in(world, truth, guess, window):
     loops = LoopSearch(MappingConfig(), None, lambda mid: (0,), lambda mid: ((0,), world), stats)
     live = seen_from(world, truth, np.random.default_rng(4))
     thinned = live[np.linspace(0, len(live) - 1, 100).round().astype(int)]
-    return loops._search_one(0, thinned, live, guess, window, math.radians(10)), stats
+    return loops.search_submap(0, thinned, live, guess, window, math.radians(10)), stats
 
 
 def test_posts_place_the_scan_along_the_corridor():

@@ -132,6 +132,10 @@ class BackEnd:
 
     # ---- what the matcher needs to know ---------------------------------------------------
 
+    def joined(self, mid: int) -> set[int]:
+        """The milestones edges join milestone ``mid`` to."""
+        return set(self._neighbours.get(mid, ()))
+
     def linked(self, tail: int = 3) -> set[int]:
         """The milestones loop edges join to the last ``tail`` milestones of the path."""
         out: set[int] = set()
@@ -371,6 +375,15 @@ class BackEnd:
             self.stats["loop edges in place"] += 1
         self._pending = None
         return True
+
+    def tie(self, new: int, old: int, reg: Registration) -> Edge:
+        """A loop edge from milestone ``new`` to ``old``, where ``new``'s stored scan
+        registered in ``old``'s submap (``reg``: the scan's pose in ``old``'s frame)."""
+        rel = np.zeros(3)  # the scan is the milestone's own
+        z, cov = _via(rel, motion_covariance(rel, self.config.motion), reg)
+        edge = self._add_edge(new, old, z, cov, "loop")
+        self.stats["loop edges"] += 1
+        return edge
 
     def disagrees(self, edge: Edge) -> bool:
         """Whether the graph as it stands disagrees with a new edge enough to adjust it."""

@@ -160,7 +160,7 @@ class LoopSearch:
         for mid, signature, _ in ranked[:CANDIDATES]:
             self.stats["loop searches"] += 1
             center = relative(self.milestones.pose(mid), pose)
-            found = self._search_one(mid, points, frame.points(), center, *windows[mid])
+            found = self.search_submap(mid, points, frame.points(), center, *windows[mid])
             if found is not None:
                 found.signature = signature
                 out.append(found)
@@ -183,10 +183,12 @@ class LoopSearch:
             self._grids.popitem(last=False)
         return built
 
-    def _search_one(self, mid: int, points: FloatArray, all_points: FloatArray,
-                    center: FloatArray, wxy: float, wth: float) -> Find | None:
+    def search_submap(self, mid: int, points: FloatArray, all_points: FloatArray,
+                      center: FloatArray, wxy: float, wth: float) -> Find | None:
         """The live scan in milestone ``mid``'s submap, searched within the window around
-        ``center`` (a pose in its frame), verified; or None."""
+        ``center`` (a pose in its frame), verified; or None. ``points``: the scan's points
+        thinned for the search (:func:`vmp.branch_bound.search_points`); ``all_points``: all
+        of them, for the refinement."""
         submap = self._submap(mid)
         if submap is None:
             return None

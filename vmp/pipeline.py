@@ -30,6 +30,7 @@ from vmp.frontend import FrontEnd, new_view
 from vmp.loops import NEIGHBOURS, LoopSearch
 from vmp.mapfile import MapData
 from vmp.matcher import Doubt, Kind, Match, Matcher, Seed
+from vmp.session_ties import tie_sessions
 from vmp.submaps import Submaps
 from vmp.types import (
     BeamGeometry,
@@ -54,6 +55,10 @@ DOWN_WEIGHTED = 0.5
 class Pipeline:
     """Build a vector map and a corrected trajectory from scan frames."""
 
+    # The id of this session's first milestone when it maps on in a saved map (a class
+    # default for checkpoints written before it was kept).
+    _first_new: int | None = None
+
     def __init__(self, geometry: BeamGeometry, config: MappingConfig | None = None,
                  view: View | None = None, saved: MapData | None = None) -> None:
         """``saved`` is a map to go on mapping in (:meth:`join` puts the robot in it)."""
@@ -74,6 +79,7 @@ class Pipeline:
                                 self._submap_points, self.stats)
         if saved is not None:
             self.back.restore(saved.graph)
+            self._first_new = int(saved.milestones.ids.max()) + 1 if len(saved.milestones) else 0
         self._join: int | None = None  # the saved milestone the robot was localized at
         # Every correction of the robot's pose: (scan index, kind, pose before, pose after).
         self.corrections: list[tuple[int, str, FloatArray, FloatArray]] = []
@@ -282,7 +288,12 @@ class Pipeline:
         return self.front.pose
 
     def finish(self) -> None:
-        """Adjust the graph a last time (when loops were closed)."""
+        """Search the loops between the sessions once more (mapping on in a saved map:
+        :mod:`vmp.session_ties`), and adjust the graph a last time (when loops were closed)."""
+        if self._first_new is not None:
+            tied = tie_sessions(self._first_new, self.geometry, self.milestones, self.loops,
+                                self.back, self.stats)
+            self.view.event(f"{tied} loop edges between the sessions found at the end")
         self.back.finish()
 
     def trajectory(self) -> FloatArray:

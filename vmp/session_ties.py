@@ -1,0 +1,110 @@
+"""Loops between two sessions, searched once more when a run that mapped on in a saved map
+ends.
+
+While a run maps on in a saved map, its loops to the old session close as any loop does: at
+each new milestone the scan is searched where the drift since the last fix allows
+(:mod:`vmp.loops`), and a find joins the graph once another confirms it. A pass over the old
+session's ground that no search tied stays where the new session's own drift put it, held only
+by the ties before and after it. Merging ACES's halves, one such stretch was left 1.3 m off the
+first half's map (its relation error 0.0462 m against 0.0355 m mapped in one go), and whether
+it was depended on which pose of an ICP cycle the localizer's first fix ended on
+(docs/benchmarks.md, twentieth session).
+
+So at the end, each new milestone's stored scan is searched again in the submaps of the old
+milestones around where the graph puts it (within :data:`WINDOW_XY` and
+:data:`WINDOW_THETA`), best signatures first, as the loop search does; old milestones that the
+new one or its neighbours on the path are joined to already are left out. A find joins the
+graph as a loop edge when a find of another new milestone, at most
+:data:`vmp.backend.CONFIRM_WITHIN` milestones away, moves the map the same way (as a loop
+search's find must be confirmed), before the graph's last adjustment.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+
+from milestones.manager import MilestoneManager
+from vmp.backend import CONFIRM_THETA, CONFIRM_WITHIN, CONFIRM_XY, BackEnd
+from vmp.branch_bound import search_points
+from vmp.loops import CANDIDATES, LINKED, REACH, LoopSearch
+from vmp.registration import Registration
+from vmp.types import BeamGeometry, FloatArray, ScanFrame, compose, inverse, relative
+
+__all__ = ["tie_sessions"]
+
+# How far the graph may have left a new milestone from where the old session's map has it
+# (m, rad): an untied stretch's drift (ACES: 1.3 m).
+WINDOW_XY = 2.0
+WINDOW_THETA = math.radians(10.0)
+MIN_SEARCH_POINTS = 20  # a scan with fewer points is not searched (as in the loop search)
+
+
+@dataclass(frozen=True)
+class _Tie:
+    new: int  # the new session's milestone ...
+    old: int  # ... found in this old one's submap ...
+    registration: Registration  # ... here (its stored scan's pose in the old one's frame)
+    correction: FloatArray  # what the find does to the new milestone (map frame)
+
+
+def tie_sessions(first_new: int, geometry: BeamGeometry, milestones: MilestoneManager,
+                 loops: LoopSearch, back: BackEnd, stats: Counter[str]) -> int:
+    """Search every milestone from ``first_new`` on in the old session's submaps around it,
+    and join the confirmed finds to the graph as loop edges; how many were joined."""
+    ids = milestones.ids
+    found = [tie for mid in ids[ids >= first_new]
+             if (tie := _search(int(mid), first_new, geometry, milestones, loops, back,
+                                stats)) is not None]
+    confirmed = [tie for tie in found if any(_agree(tie, other, milestones) for other in found)]
+    for tie in confirmed:
+        back.tie(tie.new, tie.old, tie.registration)
+    stats["loop edges between the sessions found at the end"] += len(confirmed)
+    stats["finds between the sessions not confirmed at the end"] += len(found) - len(confirmed)
+    return len(confirmed)
+
+
+def _search(mid: int, first_new: int, geometry: BeamGeometry, milestones: MilestoneManager,
+            loops: LoopSearch, back: BackEnd, stats: Counter[str]) -> _Tie | None:
+    """The first find of milestone ``mid``'s stored scan among the old milestones near it,
+    the best signatures searched first; None when none is found."""
+    pose = milestones.pose(mid)
+    ids = milestones.ids
+    old = ids < first_new
+    joined = {j for k in (mid - 1, mid, mid + 1) for j in back.joined(k) if j < first_new}
+    near = np.hypot(*(milestones.poses[old, :2] - pose[:2]).T) <= WINDOW_XY + REACH
+    candidates = [int(c) for c in ids[old][near]
+                  if not any(abs(c - j) <= LINKED for j in joined)]
+    if not candidates:
+        return None
+    ranges = milestones.scan(mid).astype(np.float64)
+    points = ScanFrame(0.0, ranges, geometry.angle_min, geometry.angle_increment,
+                       geometry.max_range).points()
+    thinned = search_points(points)
+    if len(thinned) < MIN_SEARCH_POINTS:
+        return None
+    ranked = milestones.rank(ranges, geometry.angle_min, geometry.angle_increment,
+                             geometry.max_range, candidates)
+    for old_mid, _, _ in ranked[:CANDIDATES]:
+        stats["loop searches between the sessions at the end"] += 1
+        center = relative(milestones.pose(old_mid), pose)
+        find = loops.search_submap(old_mid, thinned, points, center, WINDOW_XY, WINDOW_THETA)
+        if find is not None:
+            placed = compose(milestones.pose(old_mid), find.registration.pose)
+            return _Tie(mid, old_mid, find.registration, compose(placed, inverse(pose)))
+    return None
+
+
+def _agree(tie: _Tie, other: _Tie, milestones: MilestoneManager) -> bool:
+    """Whether ``other``, a find of another milestone at most
+    :data:`vmp.backend.CONFIRM_WITHIN` away, moves ``tie``'s milestone to within
+    :data:`vmp.backend.CONFIRM_XY` and :data:`vmp.backend.CONFIRM_THETA` of where ``tie``
+    does."""
+    if other.new == tie.new or abs(other.new - tie.new) > CONFIRM_WITHIN:
+        return False
+    pose = milestones.pose(tie.new)
+    d = relative(compose(tie.correction, pose), compose(other.correction, pose))
+    return math.hypot(d[0], d[1]) <= CONFIRM_XY and abs(d[2]) <= CONFIRM_THETA
