@@ -215,3 +215,25 @@ def test_the_learned_noise_follows_the_recent_disagreements_percentiles():
             assert odo.tail_scale == min(max(np.percentile(window, 95) / CHI2_3DOF_95, scale),
                                          MAX_NOISE_SCALE)
     assert odo.noise_scale > 2.0  # the noisier wheels were learned
+
+
+def test_scan_odometry_stops_its_icp_where_the_steps_cycle_only_when_asked(monkeypatch):
+    # A mapper's ICP runs on to its cap (its maps depend on the pose of a cycle it ends on);
+    # a localizer's stops at a cycle (vmp.icp_kernel.CYCLE; its front end asks,
+    # tests/test_tracking.py).
+    import vmp.scan_odometry as so
+
+    asked = []
+    real = so.register
+
+    def register(*args, **kwargs):
+        asked.append(kwargs.get("cycles", False))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(so, "register", register)
+    for cycles in (False, True):
+        odo = ScanOdometry(ScanOdometryConfig(), RegistrationConfig(), MotionNoise(), cycles)
+        asked.clear()
+        odo.increment(_room_scan(0.0), None)
+        odo.increment(_room_scan(0.1), np.array([0.1, 0.0, 0.0]))
+        assert asked == [cycles]

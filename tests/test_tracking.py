@@ -289,3 +289,12 @@ def test_a_trusted_place_is_outdone_over_the_scans_since_the_robot_may_have_been
     assert (mine, theirs) == (1.0, pytest.approx(0.6))
     # Declared before: compared over the scans both were followed, not over any past.
     assert localizer_module._over_common_scans(carried, trusted) == (1.0, pytest.approx(0.6))
+
+
+def test_the_localizers_scan_odometry_stops_where_its_icp_cycles_and_a_mappers_does_not():
+    """Tracking's keyframe ICP stops at a cycle (vmp.icp_kernel.CYCLE): 8 % of ACES's ran to
+    the cap. A mapper's runs on: its maps depend on which pose of a cycle ICP ends on."""
+    from vmp.frontend import FrontEnd
+
+    assert Localizer(places=_NoLookAlikes()).front.scan_odometry.cycles
+    assert not FrontEnd(MappingConfig()).scan_odometry.cycles

@@ -46,13 +46,14 @@ def new_view(last: FloatArray | None, pose: FloatArray, xy: float = NEW_VIEW_XY,
 class FrontEnd:
     """The filter's prediction from odometry and scan registration."""
 
-    def __init__(self, config: MappingConfig, filtered: bool = True) -> None:
+    def __init__(self, config: MappingConfig, filtered: bool = True,
+                 cycles: bool = False) -> None:
         self.config = config
         # Without a filter of its own it only works out the increments (a localizer moves its
         # hypotheses' filters by them).
         self.filtered = filtered
         self.scan_odometry = ScanOdometry(config.scan_odometry, config.registration,
-                                          config.motion)
+                                          config.motion, cycles)
         self.filter: PoseFilter | None = None
         self._first = True  # no scan yet
         self.odom_pose = np.zeros(3)  # where odometry alone puts the robot

@@ -223,8 +223,10 @@ class Localizer:
         # odometry. Moved by the wheels alone (their registrations against the map doing what
         # scan odometry would), tracking scored 0.03 m on the Intel part's second half
         # against 0.014 m mapped, each scan's registration against the map's thick walls
-        # pulling its own way; 0.022 m with scan odometry (docs/benchmarks.md).
-        self.front = FrontEnd(self.config, filtered=False)
+        # pulling its own way; 0.022 m with scan odometry (docs/benchmarks.md). Its ICP stops
+        # where its steps cycle: 126 of 1,535 on ACES's tracked half ran to the cap, 27 % of
+        # that ICP's time (docs/benchmarks.md, nineteenth session).
+        self.front = FrontEnd(self.config, filtered=False, cycles=True)
         self.stats: Counter[str] = Counter()
         self.hypotheses: list[Hypothesis] = []
         self.scan = -1
