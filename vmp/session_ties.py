@@ -22,10 +22,13 @@ search's find must be confirmed), before the graph's last adjustment.
 from __future__ import annotations
 
 import math
+import time
 from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from milestones.manager import MilestoneManager
 from vmp.backend import CONFIRM_THETA, CONFIRM_WITHIN, CONFIRM_XY, BackEnd
@@ -55,31 +58,43 @@ def tie_sessions(first_new: int, geometry: BeamGeometry, milestones: MilestoneMa
                  loops: LoopSearch, back: BackEnd, stats: Counter[str]) -> int:
     """Search every milestone from ``first_new`` on in the old session's submaps around it,
     and join the confirmed finds to the graph as loop edges; how many were joined."""
-    ids = milestones.ids
-    found = [tie for mid in ids[ids >= first_new]
-             if (tie := _search(int(mid), first_new, geometry, milestones, loops, back,
-                                stats)) is not None]
-    confirmed = [tie for tie in found if any(_agree(tie, other, milestones) for other in found)]
+    started = time.perf_counter()
+    ids, poses = milestones.ids, milestones.poses
+    old, new = ids < first_new, ids >= first_new
+    if not old.any() or not new.any():
+        return 0
+    # The old milestones within reach of each new one, all at once (a building's map may
+    # hold a hundred thousand).
+    near = cKDTree(poses[old, :2]).query_ball_point(poses[new, :2], WINDOW_XY + REACH)
+    found: dict[int, _Tie] = {}
+    for mid, rows in zip(ids[new], near, strict=True):
+        within = ids[old][np.sort(np.asarray(rows, dtype=np.int64))]
+        tie = _search(int(mid), within, first_new, geometry, milestones, loops, back, stats)
+        if tie is not None:
+            found[tie.new] = tie
+    confirmed = [tie for tie in found.values()
+                 if any(_agree(tie, found[other], milestones)
+                        for other in range(tie.new - CONFIRM_WITHIN, tie.new + CONFIRM_WITHIN + 1)
+                        if other != tie.new and other in found)]
     for tie in confirmed:
         back.tie(tie.new, tie.old, tie.registration)
     stats["loop edges between the sessions found at the end"] += len(confirmed)
     stats["finds between the sessions not confirmed at the end"] += len(found) - len(confirmed)
+    stats["loop search between the sessions at the end: seconds"] += time.perf_counter() - started
     return len(confirmed)
 
 
-def _search(mid: int, first_new: int, geometry: BeamGeometry, milestones: MilestoneManager,
-            loops: LoopSearch, back: BackEnd, stats: Counter[str]) -> _Tie | None:
-    """The first find of milestone ``mid``'s stored scan among the old milestones near it,
-    the best signatures searched first; None when none is found."""
-    pose = milestones.pose(mid)
-    ids = milestones.ids
-    old = ids < first_new
+def _search(mid: int, near: NDArray[np.int64], first_new: int, geometry: BeamGeometry,
+            milestones: MilestoneManager, loops: LoopSearch, back: BackEnd,
+            stats: Counter[str]) -> _Tie | None:
+    """The first find of milestone ``mid``'s stored scan among the old milestones ``near``
+    it (ids below ``first_new``), the best signatures searched first; None when none is
+    found."""
     joined = {j for k in (mid - 1, mid, mid + 1) for j in back.joined(k) if j < first_new}
-    near = np.hypot(*(milestones.poses[old, :2] - pose[:2]).T) <= WINDOW_XY + REACH
-    candidates = [int(c) for c in ids[old][near]
-                  if not any(abs(c - j) <= LINKED for j in joined)]
+    candidates = [int(c) for c in near if not any(abs(c - j) <= LINKED for j in joined)]
     if not candidates:
         return None
+    pose = milestones.pose(mid)
     ranges = milestones.scan(mid).astype(np.float64)
     points = ScanFrame(0.0, ranges, geometry.angle_min, geometry.angle_increment,
                        geometry.max_range).points()
@@ -99,12 +114,9 @@ def _search(mid: int, first_new: int, geometry: BeamGeometry, milestones: Milest
 
 
 def _agree(tie: _Tie, other: _Tie, milestones: MilestoneManager) -> bool:
-    """Whether ``other``, a find of another milestone at most
-    :data:`vmp.backend.CONFIRM_WITHIN` away, moves ``tie``'s milestone to within
+    """Whether ``other``, a find of another milestone, moves ``tie``'s milestone to within
     :data:`vmp.backend.CONFIRM_XY` and :data:`vmp.backend.CONFIRM_THETA` of where ``tie``
     does."""
-    if other.new == tie.new or abs(other.new - tie.new) > CONFIRM_WITHIN:
-        return False
     pose = milestones.pose(tie.new)
     d = relative(compose(tie.correction, pose), compose(other.correction, pose))
     return math.hypot(d[0], d[1]) <= CONFIRM_XY and abs(d[2]) <= CONFIRM_THETA
