@@ -298,3 +298,38 @@ def test_the_localizers_scan_odometry_stops_where_its_icp_cycles_and_a_mappers_d
 
     assert Localizer(places=_NoLookAlikes()).front.scan_odometry.cycles
     assert not FrontEnd(MappingConfig()).scan_odometry.cycles
+
+
+class _TwoSpots:
+    """A saved map that explains a scan fully at x <= 1 m and at x >= 2.5 m, half of it in
+    between; nothing registers against it."""
+
+    points = np.zeros((0, 2))
+    reference = None
+
+    @staticmethod
+    def score(points: np.ndarray, pose: np.ndarray) -> float:
+        return 1.0 if pose[0] <= 1.0 or pose[0] >= 2.5 else 0.5
+
+    @staticmethod
+    def fits(*_) -> bool:
+        return False
+
+
+def test_a_place_found_again_tells_a_look_alike_apart_over_the_scans_it_fitted_since(
+        monkeypatch):
+    """A place declared, lost and fitting again for 5 scans: a look-alike that explains this
+    scan as well but not the scans before it is told apart over those 5 (its misses while
+    lost are left out: the robot may have been carried then). Never told apart so, the Intel
+    part's second half started 4 scans late stayed ambiguous for 544 scans."""
+    monkeypatch.setattr(localizer_module, "register", lambda *a, **k: None)
+    loc = Localizer(places=_TwoSpots())
+    loc._within = np.ones((10, 2))
+    for _ in range(6):  # the robot drove 0.5 m a scan
+        loc._recent.append((np.ones((10, 2)), np.array([0.5, 0.0, 0.0])))
+    found_again = _hypothesis(1.0, 5, declared=True)
+    found_again.scores.extendleft([0.0, 0.0, 0.0])  # the misses while it was lost
+    # At x = 3 the scans before fall at 2.5 (explained) and 2.0 (half: a miss).
+    assert loc._told_by_the_past(found_again, np.array([3.0, 0.0, 0.0]))
+    # At x = 0.5 every scan before is explained as well: a look-alike indeed.
+    assert not loc._told_by_the_past(found_again, np.array([0.5, 0.0, 0.0]))
