@@ -474,11 +474,11 @@ class Localizer:
         they are explained clearly less well than ``best`` explains them, over the scans
         both have (:attr:`Hypothesis.history`; not :func:`_as_well`). For a place declared
         before, over the scans it has fitted in a row since it was lost only: the robot may
-        have been carried off meanwhile, and the scans before say nothing of where to. (Never
-        told apart so, a place lost and found again on the Intel part's second half stayed
-        ambiguous for 544 scans whenever it was started 4 scans later: a look-alike a few
-        metres along its corridor scored as well in the search's grid on the one scan;
-        docs/benchmarks.md, twentieth session.)"""
+        have been carried off meanwhile, and the scans before say nothing of where to. (When
+        such a place was never told apart so, the Intel part's second half started 4 scans
+        late stayed ambiguous for 544 scans after its place was lost and found again: a
+        look-alike a few metres along the corridor scored as well in the search's grid on
+        one scan; docs/benchmarks.md, twentieth session.)"""
         mine = (list(best.scores)[len(best.scores) - best.streak:] if best.declared
                 else best.history)
         if not mine:
