@@ -42,7 +42,7 @@ from vmp.types import (
 )
 from vmp.view import View
 
-__all__ = ["BackEnd", "fuse"]
+__all__ = ["BackEnd", "corrections_agree", "fuse"]
 
 # A loop the search found joins the graph when another found at most this many milestones
 # later corrects the robot's pose the same way, within this distance and turn. (Four, not
@@ -68,6 +68,14 @@ def fuse(a: FloatArray, cov_a: FloatArray, b: FloatArray, cov_b: FloatArray
     d = np.asarray(a, dtype=np.float64) - b
     d[2] = (d[2] + np.pi) % (2 * np.pi) - np.pi
     return b + cov @ (info_a @ d), 0.5 * (cov + cov.T)
+
+
+def corrections_agree(a: FloatArray, b: FloatArray, pose: FloatArray) -> bool:
+    """Whether two corrections of the map frame (what two loop finds do to it) move ``pose``
+    to within :data:`CONFIRM_XY` and :data:`CONFIRM_THETA` of each other: one confirms the
+    other."""
+    d = relative(compose(a, pose), compose(b, pose))
+    return math.hypot(d[0], d[1]) <= CONFIRM_XY and abs(d[2]) <= CONFIRM_THETA
 
 
 def _via(rel_a: FloatArray, cov_a: FloatArray, reg: Registration
@@ -365,8 +373,7 @@ class BackEnd:
         if pending is None or self.anchor - pending[0] > CONFIRM_WITHIN:
             self.stats["loop finds awaiting confirmation"] += 1
             return False
-        d = relative(compose(pending[4], pose), compose(correction, pose))
-        if math.hypot(d[0], d[1]) > CONFIRM_XY or abs(d[2]) > CONFIRM_THETA:
+        if not corrections_agree(pending[4], correction, pose):
             self.stats["loop finds awaiting confirmation"] += 1
             return False
         if pending[0] != self.anchor or pending[1] != m.milestone:

@@ -50,6 +50,7 @@ SIGMA = 0.1  # likelihood fall-off (m)
 DEPTH = 5  # levels of block maxima: the coarsest blocks are 3.2 m
 GRID_RADIUS = 20.0  # submap points farther than this from the milestone are left out (m)
 MIN_SCORE = 0.55  # mean likelihood of the live points at the find
+MIN_SEARCH_POINTS = 20  # a scan, or its part within a submap's reach, with fewer is not searched
 MAX_RATIO = 0.9  # the best pose elsewhere in the window scores at most this share of it
 SEPARATION_XY = 0.5  # "elsewhere": this far from the find (m) ...
 SEPARATION_THETA = math.radians(5.0)  # ... or turned this much
@@ -154,7 +155,7 @@ class LoopSearch:
         ranked = self.milestones.rank(frame.ranges, frame.angle_min, frame.angle_increment,
                                       frame.max_range, list(windows))
         points = search_points(frame.points())
-        if len(points) < 20:
+        if len(points) < MIN_SEARCH_POINTS:
             return []
         out = []
         for mid, signature, _ in ranked[:CANDIDATES]:
@@ -176,7 +177,7 @@ class LoopSearch:
             return None
         segments, pts = held
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= GRID_RADIUS]
-        if len(pts) < 20:
+        if len(pts) < 20:  # too few to search in
             return None
         built = self._grids[mid] = _Submap(segments, pts)
         if len(self._grids) > CACHED_GRIDS:
@@ -203,7 +204,7 @@ class LoopSearch:
         # they failed finds that two searches agreed on to 0.1 m (scans 6703-6741).
         placed = transform_points(best.pose, all_points)
         inside = all_points[np.hypot(placed[:, 0], placed[:, 1]) <= GRID_RADIUS]
-        if len(inside) < 20:
+        if len(inside) < MIN_SEARCH_POINTS:
             self.stats["loop searches with a poor refinement"] += 1
             return None
         reg = register(ref, inside, best.pose)

@@ -31,9 +31,9 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from milestones.manager import MilestoneManager
-from vmp.backend import CONFIRM_THETA, CONFIRM_WITHIN, CONFIRM_XY, BackEnd
+from vmp.backend import CONFIRM_WITHIN, BackEnd, corrections_agree
 from vmp.branch_bound import search_points
-from vmp.loops import CANDIDATES, LINKED, REACH, LoopSearch
+from vmp.loops import CANDIDATES, LINKED, MIN_SEARCH_POINTS, REACH, LoopSearch
 from vmp.registration import Registration
 from vmp.types import BeamGeometry, FloatArray, ScanFrame, compose, inverse, relative
 
@@ -43,7 +43,6 @@ __all__ = ["tie_sessions"]
 # (m, rad): an untied stretch's drift (ACES: 1.3 m).
 WINDOW_XY = 2.0
 WINDOW_THETA = math.radians(10.0)
-MIN_SEARCH_POINTS = 20  # a scan with fewer points is not searched (as in the loop search)
 
 
 @dataclass(frozen=True)
@@ -73,7 +72,8 @@ def tie_sessions(first_new: int, geometry: BeamGeometry, milestones: MilestoneMa
         if tie is not None:
             found[tie.new] = tie
     confirmed = [tie for tie in found.values()
-                 if any(_agree(tie, found[other], milestones)
+                 if any(corrections_agree(tie.correction, found[other].correction,
+                                          milestones.pose(tie.new))
                         for other in range(tie.new - CONFIRM_WITHIN, tie.new + CONFIRM_WITHIN + 1)
                         if other != tie.new and other in found)]
     for tie in confirmed:
@@ -112,11 +112,3 @@ def _search(mid: int, near: NDArray[np.int64], first_new: int, geometry: BeamGeo
             return _Tie(mid, old_mid, find.registration, compose(placed, inverse(pose)))
     return None
 
-
-def _agree(tie: _Tie, other: _Tie, milestones: MilestoneManager) -> bool:
-    """Whether ``other``, a find of another milestone, moves ``tie``'s milestone to within
-    :data:`vmp.backend.CONFIRM_XY` and :data:`vmp.backend.CONFIRM_THETA` of where ``tie``
-    does."""
-    pose = milestones.pose(tie.new)
-    d = relative(compose(tie.correction, pose), compose(other.correction, pose))
-    return math.hypot(d[0], d[1]) <= CONFIRM_XY and abs(d[2]) <= CONFIRM_THETA
