@@ -109,6 +109,30 @@ def test_every_signature_method_proposes_the_place(method):
     assert (res.errors()[res.localized] <= 0.5).all()
 
 
+def test_a_robot_standing_still_is_left_out_but_not_one_set_down_elsewhere():
+    # Localized in the lab, the robot stands still for 20 scans: the same view from the same
+    # place, left out. Then it is carried off, its wheels never turning, and stands at the
+    # new place for 20 scans before it drives on: those scans show something else, and must
+    # not be left out as still at the old place.
+    frames, truth = _run("lab", 6)
+    a, b, n, wait = 100, 700, 120, 20
+    first, there = frames[a:a + n], frames[b:b + n]
+    joined = carried([first] + [[first[-1]]] * wait + [[there[0]]] * wait + [there])
+    ref = Reference(np.vstack([truth[a:a + n], [truth[a + n - 1]] * wait,
+                               [truth[b]] * wait, truth[b:b + n]]), "ground truth", True)
+    res = LocalizationRun(_saved("lab"), FrameList(joined, "lab", ref)).run()
+    loc, err = res.localized, res.errors()
+    standing = slice(n, n + wait)
+    assert loc[standing].all()
+    assert res.metrics()["scans standing still, left out"] >= wait - 1
+    assert np.ptp(res.poses[standing], axis=0).max() == 0.0  # the same pose, left as it was
+    set_down = slice(n + wait, n + 2 * wait)
+    stale = loc[set_down] & (err[set_down] > 0.5)
+    assert stale.sum() < LOST_AFTER, f"{stale.sum()} scans held at the old place"
+    assert res.metrics()["scans standing still, left out"] < 2 * wait
+    assert _first_right(res, n + wait, len(joined)) <= WITHIN
+
+
 def test_splice_carries_the_robot_without_the_odometry_noticing():
     frames, truth = _run("lab", 8)
     joined = carried([frames[10:20], frames[500:510]])

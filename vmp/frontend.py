@@ -106,6 +106,13 @@ class FrontEnd:
         self._last_taken = taken
         self._last_stamp = frame.stamp
 
+    def hold(self, frame: ScanFrame) -> None:
+        """Leave this scan out (the caller found the robot standing where it was at the last
+        scan predicted): its odometry is kept for the delay's interpolation, and the next
+        scan's increment spans it."""
+        if frame.odom is not None:
+            self.latency.odometry(frame.stamp, frame.odom)
+
     @property
     def pose(self) -> FloatArray:
         return self.filter.pose

@@ -112,6 +112,8 @@ class LocalizationResult:
         out["scans lost"] = sum(s is State.LOST for s in self.states)
         out["scans ambiguous"] = sum(s is State.AMBIGUOUS for s in self.states)
         out["places searched"] = self.stats.get("places searched", 0)
+        out["scans standing still, left out"] = self.stats.get(
+            "scans standing still, left out", 0)
         err = self.errors()
         if err is not None:
             out["wrong fixes"] = int((err[starts] > WRONG_FIX).sum())

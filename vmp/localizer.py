@@ -57,6 +57,8 @@ filter does: a registration against such a map places one scan to a centimetre o
 scan after scan those errors do not average out unless the motion between them is known
 better still. Once trusted, a place is registered against the map every decimetre or five
 degrees of travel, scan odometry carrying it in between; every scan is still scored there.
+A robot localized that stands still and sees what it saw is left where it is: its scans are
+not registered, scored or searched from again (:meth:`Localizer._still`).
 """
 
 from __future__ import annotations
@@ -72,7 +74,7 @@ import numpy as np
 
 from vmp.branch_bound import Match, first_match, search, search_points
 from vmp.config import MappingConfig
-from vmp.frontend import FrontEnd, new_view
+from vmp.frontend import NEW_VIEW_XY, FrontEnd, new_view
 from vmp.fusion import CHI2_3DOF_99, PoseFilter
 from vmp.places import Places
 from vmp.registration import MIN_POINTS, register
@@ -242,6 +244,7 @@ class Localizer:
         # The last scans' points within REACH, each with the increment that brought the robot
         # to it: where a place proposed now would have put them (:meth:`_past`).
         self._recent: deque[tuple[FloatArray, FloatArray]] = deque(maxlen=WINDOW)
+        self._last_frame: ScanFrame | None = None  # the last scan not left out as still
         if initial_pose is not None:  # one more place to follow, judged like the others
             self.hypotheses.append(self._start(
                 np.asarray(initial_pose, dtype=np.float64),
@@ -250,6 +253,14 @@ class Localizer:
     def step(self, frame: ScanFrame) -> Step:
         """Move, verify and decide for one scan."""
         self.scan += 1
+        if self._still(frame):
+            # Nothing to move, verify or search: the last scan's answer stands.
+            self.front.hold(frame)
+            self.stats["scans standing still, left out"] += 1
+            self.stats[f"scans {self.state.value}"] += 1
+            pose = self.hypotheses[0].pose.copy()
+            return Step(self.state, pose, [pose.copy()], [])
+        self._last_frame = frame
         points = self._points = frame.points()
         self._within = points[np.hypot(points[:, 0], points[:, 1]) <= REACH]
         self.front.predict(frame, points)
@@ -276,6 +287,25 @@ class Localizer:
         pose = (trusted.pose.copy() if self.state is State.LOCALIZED and trusted is not None
                 else None)
         return Step(self.state, pose, [h.pose.copy() for h in ranked], proposals)
+
+    def _still(self, frame: ScanFrame) -> bool:
+        """Whether the robot, localized on the one place followed, stands where it stood at
+        the last scan not left out and sees what it saw then: its wheels moved less than a new
+        view (:func:`vmp.frontend.new_view`) and most beams read the same
+        (:func:`_same_view`). Such a scan says nothing new: the mapper does not match it
+        either. (ACES's second half stands still on 41 % of its scans, and a tracked scan
+        standing still cost 239 us, half of it scan odometry finding no motion, the rest
+        scoring the same view again and searching anew for a better place from where the
+        search before found none; docs/benchmarks.md, twenty-first session.) A robot carried
+        off sees something else, even when its wheels stand still."""
+        last = self._last_frame
+        if (self.state is not State.LOCALIZED or len(self.hypotheses) != 1
+                or self.hypotheses[0].misses or last is None
+                or frame.odom is None or last.odom is None
+                or frame.ranges.shape != last.ranges.shape
+                or new_view(last.odom, frame.odom)):
+            return False
+        return _same_view(last.ranges, frame.ranges)
 
     def _search(self, frame: ScanFrame) -> list[Proposal]:
         """Places proposed by the signatures, followed from now on."""
@@ -724,6 +754,15 @@ def _least_as_well(best: float) -> float:
     ``best`` (:func:`_as_well` with :data:`GRID_MARGIN`), for a grid search to prune
     below."""
     return 1.0 - (RIVAL_FACTOR * (1.0 - best) + GRID_MARGIN)
+
+
+def _same_view(before: FloatArray, now: FloatArray) -> bool:
+    """Whether most beams of two scans of one scanner read the same: within
+    :data:`vmp.frontend.NEW_VIEW_XY` of each other, or no return in both."""
+    with np.errstate(invalid="ignore"):  # inf - inf: no return in either, compared below
+        same = np.abs(now - before) < NEW_VIEW_XY
+    same |= np.isinf(now) & np.isinf(before)
+    return 2 * int(np.count_nonzero(same)) > len(same)
 
 
 def _same(a: FloatArray, b: FloatArray) -> bool:
