@@ -139,7 +139,7 @@ def sim_run(name: str, smap: MapData, seed: int) -> dict:
     res = whole(LocalizationRun(smap, FrameList(joined, name, ref)).run())
     err = res.errors()
     loc = res.localized
-    starts = np.flatnonzero(loc & ~np.concatenate([[False], loc[:-1]]))
+    starts = res.declarations
     after = np.arange(res.scans) >= STRETCH
     return {"seed": seed, "start": recovery(res, 0, STRETCH),
             "kidnap": recovery(res, STRETCH, 2 * STRETCH),
@@ -233,15 +233,13 @@ def late_starts(name: str, frames: list, half: int, first_map: MapData, full: Re
 
 def declared_off(res: LocalizationResult, cut_map: FloatArray, one_go: FloatArray,
                  cut: int) -> int:
-    """The places ``res`` declared (its localized stretches' first scans) farther than
+    """The places ``res`` declared (:attr:`LocalizationResult.declarations`) farther than
     :data:`WRONG_FIX` from one go's pose of the scan (``one_go``, the whole log mapped), the
     declared pose carried into one go's frame by the two trajectories' poses of the first
     ``cut`` scans (``cut_map``, the map localized in) at the one nearest it: the two maps
     bend apart over a building, but not at one place."""
-    loc = res.localized
-    starts = np.flatnonzero(loc & ~np.concatenate([[False], loc[:-1]]))
     off = 0
-    for s in starts:
+    for s in res.declarations:
         pose = res.poses[s]
         k = int(np.argmin(np.hypot(*(cut_map[:, :2] - pose[:2]).T)))
         e = relative(one_go[cut + s], compose(compose(one_go[k], inverse(cut_map[k])), pose))

@@ -89,6 +89,12 @@ class LocalizationResult:
     def localized(self) -> np.ndarray:
         return np.array([s is State.LOCALIZED for s in self.states], dtype=bool)
 
+    @property
+    def declarations(self) -> np.ndarray:
+        """The scans where a localized stretch begins: where a place was declared."""
+        loc = self.localized
+        return np.flatnonzero(loc & ~np.concatenate([[False], loc[:-1]]))
+
     def errors(self) -> FloatArray | None:
         """Distance of each localized pose from the truth (NaN elsewhere), when it is known.
 
@@ -102,7 +108,7 @@ class LocalizationResult:
     def metrics(self) -> dict:
         loc = self.localized
         first = int(np.argmax(loc)) if loc.any() else None
-        starts = np.flatnonzero(loc & ~np.concatenate([[False], loc[:-1]]))
+        starts = self.declarations
         out: dict = {"source": self.label, "version": __version__, "map": self.map_path}
         out.update(self.report.counts)
         out["scans"] = self.scans
