@@ -39,6 +39,14 @@ elsewhere, the kidnapped robot). The lost place takes over again once it fits
 better (the robot was there, and a look-alike room elsewhere is no reason to doubt it); a
 place found otherwise takes over as above.
 
+Where places score alike by their end points (the simulated warehouse's rack bays along an
+aisle all score 1.000), the saved map's views may tell them apart (:mod:`vmp.views`: how many
+of the live beams the stored scans taken near a place contradict, seen from there). Each
+place followed keeps its views beside its scores while it is compared with others; among the
+best and its rivals, the one whose views agree clearly better with the scans than every
+other's is the place (:meth:`Localizer._told_apart`), and a look-alike a search finds that
+only the views tell apart is followed, to be compared so too.
+
 A robot carried to a look-alike nearby (a rack bay further along the aisle) may go on fitting
 the old place, only less well. The place trusted is doubted while it explains the scans clearly
 worse than when it was declared (by the measure that tells a place clearly better than
@@ -139,6 +147,26 @@ MAX_ALIKE = 8
 # it does at the place.
 PATH_WINDOW_XY = 0.6
 PATH_WINDOW_THETA = math.radians(10.0)
+# A place's views (:mod:`vmp.views`) agree clearly better with the scans than another's when
+# the other's contradict more than VIEW_FACTOR times the share of beams the first's do, plus
+# VIEW_MARGIN, and the difference is VIEW_Z standard deviations or more, over MIN_VIEWS scans
+# at least that both have a view for (:func:`_seen_clearly_better`).
+VIEW_FACTOR = 1.5
+VIEW_MARGIN = 0.01
+# Views that contradict more than this share of the beams at the better place tell nothing
+# apart. (On ACES, people and a path a few decimetres aside left 9-34 % of the beams
+# contradicted where the right place was declared; a wrong place whose views contradicted
+# 27 % was declared when another's contradicted 81 %, cut at 0.55. In the simulated worlds
+# the right places' views contradict 0-1.2 %.)
+VIEW_MOST = 0.05
+VIEW_Z = 3.0
+MIN_VIEWS = 5
+# A place a search finds is judged on the scans before it, carried back along scan odometry,
+# where a wall seen at a grazing angle from a pose a little off contradicts more beams: told
+# apart by views so at this margin only. (At 0.01, the searches told apart by their views
+# more and more wrong stretches of the simulated corridor's look-alikes, until one facing
+# the other way was declared, seed 118.)
+FOUND_VIEW_MARGIN = 0.03
 # How well a proposal's pose is known when a hypothesis starts from it (m, m, rad).
 PROPOSAL_SIGMA = (0.1, 0.1, math.radians(2.0))
 
@@ -150,6 +178,10 @@ class State(Enum):
     AMBIGUOUS = "ambiguous"  # more than one place fits and was found about as often
     LOCALIZED = "localized"  # one place, trusted, and the scan fits there
     LOST = "lost"  # was localized, the scans stopped fitting
+
+
+View = tuple[int, int]  # live beams a place's view contradicts, and those it knows
+NO_VIEW: View = (0, 0)
 
 
 @dataclass
@@ -175,12 +207,26 @@ class Hypothesis:
     # Its scores on the scans before it was proposed, oldest first, the robot carried back
     # along their increments (:meth:`Localizer._past`): compared with the others over them too.
     past: list[float] = field(default_factory=list)
+    # Beside each score, the live beams the saved map's view from the place contradicts and
+    # those it knows (:class:`vmp.views.SavedViews`; (0, 0): no view, or not looked at).
+    views: deque[View] = field(default_factory=lambda: deque(maxlen=WINDOW))
+    past_views: list[View] = field(default_factory=list)
 
     @property
     def history(self) -> list[float]:
         """Its scores over the last :data:`WINDOW` scans, those before it was proposed
         included (a miss counts 0)."""
         return (self.past + list(self.scores))[-WINDOW:]
+
+    @property
+    def view_history(self) -> list[View]:
+        """Its views over the scans of :attr:`history`."""
+        return (self.past_views + list(self.views))[-WINDOW:]
+
+    def record(self, score: float, view: View) -> None:
+        """One more scan's score (0: a miss) and view."""
+        self.scores.append(score)
+        self.views.append(view)
 
     @property
     def known_fits(self) -> int:
@@ -233,6 +279,7 @@ class Localizer:
         self.hypotheses: list[Hypothesis] = []
         self.scan = -1
         self._points = np.zeros((0, 2))  # this scan's points ...
+        self._ranges = np.zeros(0)  # ... its ranges ...
         self._within = np.zeros((0, 2))  # ... and those within REACH
         self._last_search = -SEARCH_EVERY
         self.state = State.SEARCHING
@@ -243,7 +290,7 @@ class Localizer:
         self._tried: dict[int, FloatArray] = {}
         # The last scans' points within REACH, each with the increment that brought the robot
         # to it: where a place proposed now would have put them (:meth:`_past`).
-        self._recent: deque[tuple[FloatArray, FloatArray]] = deque(maxlen=WINDOW)
+        self._recent: deque[tuple[FloatArray, FloatArray, FloatArray]] = deque(maxlen=WINDOW)
         self._last_frame: ScanFrame | None = None  # the last scan not left out as still
         if initial_pose is not None:  # one more place to follow, judged like the others
             self.hypotheses.append(self._start(
@@ -266,7 +313,8 @@ class Localizer:
         self.front.predict(frame, points)
         u, q = self.front.increment
         self._odometry = compose(self._odometry, u)
-        self._recent.append((self._within, u))
+        self._ranges = frame.ranges
+        self._recent.append((self._within, u, frame.ranges))
         for h in self.hypotheses:
             h.filter.predict(u, q)
             self._track(h)
@@ -359,7 +407,7 @@ class Localizer:
         if len(near) < MIN_POINTS or len(places.points) < MIN_POINTS:  # nothing to match
             h.misses += 1
             h.streak = 0
-            h.scores.append(0.0)
+            h.record(0.0, NO_VIEW)
             return
         update = False
         # A place trusted is registered every TRACK_EVERY; one followed, whenever the robot
@@ -386,7 +434,7 @@ class Localizer:
         if score < KEEP_RATIO * h.usual:
             h.misses += 1
             h.streak = 0
-            h.scores.append(0.0)
+            h.record(0.0, NO_VIEW)
             return
         if update:
             h.filter.update(reg.pose, reg.covariance)
@@ -394,7 +442,9 @@ class Localizer:
         h.fits += 1
         h.streak += 1
         h.fitted.append(score)
-        h.scores.append(score)
+        # A place tracked alone is compared with none: its view is not looked at.
+        alone = h.trusted and len(self.hypotheses) == 1
+        h.record(score, NO_VIEW if alone else self._view(self._ranges, h.pose))
 
     def _follow(self, pose: FloatArray) -> None:
         """Follow the place ``pose`` (scored there as a tracked scan is), unless one followed
@@ -404,13 +454,18 @@ class Localizer:
         cov = rotate_covariance(np.diag(np.square(PROPOSAL_SIGMA)), pose[2])
         h = self._start(pose, cov)
         score = self.places.score(self._within, pose)
-        h.scores.append(score)
+        h.record(score, self._view(self._ranges, pose))
         h.fitted.append(score)
-        h.past = self._past(pose, score)
+        h.past, h.past_views = self._past(pose, score)
         self.hypotheses.append(h)
 
-    def _past(self, pose: FloatArray, score: float) -> list[float]:
-        """The scores of the scans before this one, oldest first, had the robot been at
+    def _view(self, ranges: FloatArray, pose: FloatArray) -> View:
+        """The live beams (``ranges``) the saved map's view from ``pose`` contradicts, and
+        those it knows (:meth:`vmp.views.SavedViews.disagreement`)."""
+        return self.places.views.disagreement(ranges, pose)
+
+    def _past(self, pose: FloatArray, score: float) -> tuple[list[float], list[View]]:
+        """The scores and views of the scans before this one, oldest first, had the robot been at
         ``pose`` now and moved as scan odometry says: back to the first that misses
         (:data:`KEEP_RATIO` of ``score``), which counts 0, or :data:`WINDOW` scans back.
 
@@ -422,15 +477,19 @@ class Localizer:
         (The bays along an aisle often stay alike: the endpoint score cannot see what tells
         them apart in the world, a beam that would stop short or pass a rack's end.)"""
         out: list[float] = []
+        views: list[View] = []
         recent = list(self._recent)
         for k in range(len(recent) - 1, 0, -1):  # WINDOW scans at most
             pose = compose(pose, inverse(recent[k][1]))
-            past = self.places.score(recent[k - 1][0], pose) if len(recent[k - 1][0]) else 0.0
+            points, ranges = recent[k - 1][0], recent[k - 1][2]
+            past = self.places.score(points, pose) if len(points) else 0.0
             if past < KEEP_RATIO * score:
                 out.append(0.0)
+                views.append(NO_VIEW)
                 break
             out.append(past)
-        return out[::-1]
+            views.append(self._view(ranges, pose))
+        return out[::-1], views[::-1]
 
     def _tried_here(self) -> set[int]:
         """The milestones searched from about here (within :data:`RETRY_XY` and
@@ -451,9 +510,19 @@ class Localizer:
         each costs a registration a scan."""
         trusted = self._trusted()
         keep: list[Hypothesis] = []
-        # The place declared before it was lost is kept while it dead-reckons, however
-        # many others are proposed: it may fit again (below, in the decision).
-        for h in sorted(self.hypotheses, key=lambda h: (-h.trusted, -h.declared, -h.score)):
+        top = max((h.score for h in self.hypotheses), default=0.0)
+
+        def rank(h: Hypothesis) -> tuple:
+            # The place declared before it was lost is kept while it dead-reckons, however
+            # many others are proposed: it may fit again (below, in the decision). Among the
+            # places that score about as well as the best, those whose views agree best
+            # come first (along the simulated warehouse's aisles many score 1.000, and the
+            # right place was dropped for later ones); views that tell nothing
+            # (:data:`VIEW_MOST`) do not rank a place.
+            return (-h.trusted, -h.declared, not _as_well(h.score, top),
+                    min(_view_share(h), VIEW_MOST), -h.score)
+
+        for h in sorted(self.hypotheses, key=rank):
             if h.misses > (DEAD_RECKONING if h.declared else DROP_AFTER):
                 continue
             if trusted is not None and h is not trusted and len(h.scores) == WINDOW:
@@ -471,14 +540,23 @@ class Localizer:
     def _aliased(self, h: Hypothesis) -> bool:
         """Whether another pose near ``h`` explains this scan about as well (the search
         only ever looks around the milestones, and a corridor of pilasters may hold none
-        where the robot is), and the scans before it too (:meth:`_told_by_the_past`)."""
-        known = [h.pose]
+        where the robot is), and the scans before it too (:meth:`_told_by_the_past`). The
+        places followed that the views tell from ``h`` are not looked for; one a search
+        finds that only the views tell apart is followed, to be compared with whichever
+        place is best."""
+        known = [h.pose] + [o.pose for o in self.hypotheses
+                            if o is not h and _seen_clearly_better(*_over_common_views(h, o))]
+        followed = False
         for _ in range(MAX_ALIKE):
             found = self._near(h, _least_as_well, known)
             if found is None or not _as_well(found[1], found[2], GRID_MARGIN):
-                return False
-            if not self._told_by_the_past(h, found[0]):
+                return followed
+            told = self._told_by_the_past(h, found[0])
+            if told is None:
                 return True
+            if told == "views":  # followed, and compared with the best from the next scan on
+                self._follow(found[0])
+                followed = True
             known.append(found[0])
         return True
 
@@ -498,26 +576,38 @@ class Localizer:
                        exclude=(away, *ALIAS_APART))
         return None if other is None else (other.pose, other.score, mine)
 
-    def _told_by_the_past(self, best: Hypothesis, pose: FloatArray) -> bool:
-        """Whether the scans before this one tell ``pose`` (a search's, registered against
-        the map where that fits) from ``best``: carried back from there along scan odometry
-        they are explained clearly less well than ``best`` explains them, over the scans
-        both have (:attr:`Hypothesis.history`; not :func:`_as_well`). For a place declared
-        before, over the scans it has fitted in a row since it was lost only: the robot may
-        have been carried off meanwhile, and the scans before say nothing of where to. (When
-        such a place was never told apart so, the Intel part's second half started 4 scans
-        late stayed ambiguous for 544 scans after its place was lost and found again: a
-        look-alike a few metres along the corridor scored as well in the search's grid on
-        one scan; docs/benchmarks.md, twentieth session.)"""
-        mine = (list(best.scores)[len(best.scores) - best.streak:] if best.declared
-                else best.history)
+    def _told_by_the_past(self, best: Hypothesis, pose: FloatArray) -> str | None:
+        """How the scans before this one tell ``pose`` (a search's, registered against the
+        map where that fits) from ``best``, carried back from there along scan odometry:
+        "scores" when they are explained clearly less well than ``best`` explains them, over
+        the scans both have (:attr:`Hypothesis.history`; not :func:`_as_well`), "views" when
+        they are not but the views from there agree clearly worse with them
+        (:func:`_seen_clearly_better`, at :data:`FOUND_VIEW_MARGIN`), None when neither.
+        For a place declared before, over the scans it has fitted in a row since it was lost
+        only: the robot may have been carried off meanwhile, and the scans before say nothing
+        of where to. (When such a place was never told apart so, the Intel part's second half
+        started 4 scans late stayed ambiguous for 544 scans after its place was lost and
+        found again: a look-alike a few metres along the corridor scored as well in the
+        search's grid on one scan; docs/benchmarks.md, twentieth session.)"""
+        if best.declared:
+            mine = list(best.scores)[len(best.scores) - best.streak:]
+            my_views = list(best.views)[len(best.views) - best.streak:]
+        else:
+            mine, my_views = best.history, best.view_history
         if not mine:
-            return False
+            return None
         reg = register(self.places.reference, self._within, pose, corners=False, cycles=True)
         if self.places.fits(reg, self._within, self.config.registration):
             pose = reg.pose
         score = self.places.score(self._within, pose)
-        return not _as_well(*_compared((self._past(pose, score) + [score])[-WINDOW:], mine))
+        scores, views = self._past(pose, score)
+        theirs = (scores + [score])[-WINDOW:]
+        their_views = (views + [self._view(self._ranges, pose)])[-WINDOW:]
+        if not _as_well(*_compared(theirs, mine)):
+            return "scores"
+        if _seen_clearly_better(my_views, their_views, FOUND_VIEW_MARGIN):
+            return "views"
+        return None
 
     @staticmethod
     def _doubted(h: Hypothesis) -> bool:
@@ -567,8 +657,8 @@ class Localizer:
             # (Unchecked for a look-alike nearby, the simulated office's old place resumed
             # after a kidnap to another stretch of its pilastered corridor.)
             return self._declare(resumed, "times the lost place resumed")
-        best = max(fitting, key=lambda h: h.score)
-        if any(h is not best and _rival(h, best) for h in self.hypotheses):
+        best = self._told_apart(max(fitting, key=lambda h: h.score), fitting)
+        if best is None:
             return State.AMBIGUOUS
         if best.searches < MIN_SEARCHES or best.fits < MIN_FITS or best.score < MIN_SCORE:
             return waiting
@@ -579,6 +669,24 @@ class Localizer:
             self.stats["places alike along the path"] += 1
             return State.AMBIGUOUS
         return self._declare(best, "times localized")
+
+    def _told_apart(self, best: Hypothesis, fitting: list[Hypothesis]) -> Hypothesis | None:
+        """The place among ``best`` (the best score) and its rivals (:func:`_rival`) that
+        the saved map's views tell from every other: ``best`` when it has no rival, the one
+        fitting place whose views agree clearly better with the scans than those of every
+        other place that is its rival or ``best``'s (:func:`_seen_clearly_better`), None when
+        there is none (ambiguous)."""
+        rivals = [h for h in self.hypotheses if h is not best and _rival(h, best)]
+        if not rivals:
+            return best
+        contenders = [best, *rivals]
+        for h in sorted((h for h in contenders if h in fitting), key=_view_share):
+            others = [o for o in self.hypotheses
+                      if o is not h and (o in contenders or _rival(o, h))]
+            if all(_seen_clearly_better(*_over_common_views(h, o)) for o in others):
+                self.stats["places told apart by the map's views"] += 1
+                return h
+        return None
 
     def _elsewhere(self, best: Hypothesis) -> bool:
         """Whether the scan fits about as well somewhere along the saved path far from
@@ -602,16 +710,31 @@ class Localizer:
             return best.alike
         best.checked_at = self._odometry.copy()
         best.alike = False
+        # The places followed and told apart from the best already are not looked for again;
+        # one not told apart is, and holds the decision when found.
+        seen_apart = [h.pose for h in self.hypotheses if h is not best
+                      and not _left_behind(h, best)
+                      and _seen_clearly_better(*_over_common_views(best, h))]
         left = [h.pose for h in self.hypotheses if h is best or _left_behind(h, best)]
+        left += seen_apart
         for _ in range(MAX_ALIKE):
             found = self._along_path(best.pose, _least_as_well, left)
             if found is None:
-                break
-            if not self._told_by_the_past(best, found.pose):
+                return best.alike
+            told = self._told_by_the_past(best, found.pose)
+            if told != "scores":
+                # Followed, and compared with the best from the next scan on (told apart by
+                # their views so far only: judged on the scans to come too).
                 self._follow(found.pose)
                 best.alike = True
-                break
+            if told is None:
+                return best.alike
             left.append(found.pose)
+        # Out of tries: every place found was told apart by the scans before. Where the
+        # views told some apart, the search went farther than the scores alone would have
+        # let it, and decides nothing (along the simulated corridor's look-alikes it then
+        # declared wrong stretches, seeds 104, 106, 112 and 138).
+        best.alike = best.alike or bool(seen_apart)
         return best.alike
 
     def _along_path(self, pose: FloatArray, least: Callable[[float], float],
@@ -699,6 +822,54 @@ def _over_common_scans(h: Hypothesis, other: Hypothesis) -> tuple[float, float]:
     if h.declared or other.declared:  # over the scans both were followed
         return _compared(list(h.scores), list(other.scores), unexplained=True)
     return _compared(h.history, other.history)
+
+
+def _over_common_views(h: Hypothesis, other: Hypothesis) -> tuple[list[View], list[View]]:
+    """The views of ``h`` and ``other`` over the scans :func:`_over_common_scans` compares
+    their scores on."""
+    if h.declared or other.declared:
+        return list(h.views), list(other.views)
+    return h.view_history, other.view_history
+
+
+def _view_share(h: Hypothesis) -> float:
+    """The share of the live beams its views contradict, over the scans they know (1 when
+    they know none)."""
+    wrong = sum(d for d, _ in h.view_history)
+    known = sum(k for _, k in h.view_history)
+    return wrong / known if known else 1.0
+
+
+def _seen_clearly_better(mine: list[View], theirs: list[View], margin: float = VIEW_MARGIN
+                         ) -> bool:
+    """Whether the views of one place agree clearly better with the scans than another's,
+    over the last scans both have a view for, and over the last :data:`MIN_VIEWS` of them
+    too (a place just proposed is still settling, and its first scans' views may
+    contradict many beams along a wall seen at a grazing angle): the first's contradict
+    :data:`VIEW_MOST` of the beams at most, the other's more
+    than :data:`VIEW_FACTOR` times the share of the beams the first's contradict, plus
+    ``margin``, and by :data:`VIEW_Z` standard deviations of the difference (two shares of
+    beams, binomial) or more."""
+    n = min(len(mine), len(theirs))
+    pairs = [(a, b) for a, b in zip(mine[len(mine) - n:], theirs[len(theirs) - n:], strict=True)
+             if a[1] and b[1]]
+    return (len(pairs) >= MIN_VIEWS and _views_apart(pairs, margin)
+            and _views_apart(pairs[-MIN_VIEWS:], margin))
+
+
+def _views_apart(pairs: list[tuple[View, View]], margin: float) -> bool:
+    """:func:`_seen_clearly_better` over ``pairs`` of views (the first place's, the
+    other's)."""
+    wrong_a = sum(a[0] for a, _ in pairs)
+    known_a = sum(a[1] for a, _ in pairs)
+    wrong_b = sum(b[0] for _, b in pairs)
+    known_b = sum(b[1] for _, b in pairs)
+    share_a, share_b = wrong_a / known_a, wrong_b / known_b
+    if share_a > VIEW_MOST or share_b < VIEW_FACTOR * share_a + margin:
+        return False
+    pooled = (wrong_a + wrong_b) / (known_a + known_b)
+    spread = math.sqrt(pooled * (1.0 - pooled) * (1.0 / known_a + 1.0 / known_b))
+    return share_b - share_a >= VIEW_Z * spread
 
 
 def _over_scans_since(h: Hypothesis, trusted: Hypothesis) -> tuple[float, float]:

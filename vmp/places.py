@@ -31,6 +31,7 @@ from vmp.registration import Reference, Registration, explained, fits, last_gate
 from vmp.submaps import voxel_thin
 from vmp.types import FloatArray, inverse, transform_points
 from vmp.vector_map import VectorMap
+from vmp.views import SavedViews
 
 __all__ = ["Place", "Places", "fits_map", "samples_along"]
 
@@ -75,6 +76,8 @@ class Places:
         self._cache: OrderedDict[int, Place | None] = OrderedDict()
         self._grid: SearchGrid | None = None
         self._reference: Reference | None = None
+        self._trajectory = trajectory
+        self._views: SavedViews | None = None
 
     def __len__(self) -> int:
         return len(self.milestones)
@@ -111,6 +114,14 @@ class Places:
         if self._reference is None:
             self._reference = Reference(self.points)
         return self._reference
+
+    @property
+    def views(self) -> SavedViews:
+        """The map's stored scans as views of the places along its path (built on first
+        use)."""
+        if self._views is None:
+            self._views = SavedViews(self.map, self._trajectory)
+        return self._views
 
     def score(self, points: FloatArray, pose: FloatArray) -> float:
         """Mean likelihood of ``points`` (their frame) placed at ``pose`` (map frame): a point
