@@ -205,11 +205,20 @@ def test_a_saved_map_too_small_to_match_makes_every_scan_a_miss():
     assert loc._near(h, lambda mine: 0.0) is None
 
 
+class _NoViews:
+    """A saved map's views that know nothing of any place."""
+
+    @staticmethod
+    def disagreement(ranges: np.ndarray, pose: np.ndarray) -> tuple[int, int]:
+        return 0, 0
+
+
 class _Field:
     """A saved map that explains a scan fully at x <= 1 m and half of it beyond (its score
     depends on where a scan is placed only)."""
 
     points = np.zeros((0, 2))
+    views = _NoViews()
 
     @staticmethod
     def score(points: np.ndarray, pose: np.ndarray) -> float:
@@ -223,14 +232,14 @@ def test_a_place_proposed_later_is_scored_on_the_scans_before_it_carried_back():
     loc = Localizer(places=_Field())
     step = np.array([0.5, 0.0, 0.0])
     for _ in range(6):
-        loc._recent.append((np.ones((10, 2)), step))
+        loc._recent.append((np.ones((10, 2)), step, np.full(10, np.inf)))
     # Every scan before explained where a place at x = 1 puts it (x = 0.5, 0, -0.5, ...).
-    assert loc._past(np.array([1.0, 0.0, 0.0]), 1.0) == [1.0] * 5
+    assert loc._past(np.array([1.0, 0.0, 0.0]), 1.0) == ([1.0] * 5, [(0, 0)] * 5)
     # From x = 2.5: the scans before at 2.0 and 1.5 score half (a miss against 1.0 at 0.8),
     # so the first back ends the past with a 0.
-    assert loc._past(np.array([2.5, 0.0, 0.0]), 1.0) == [0.0]
+    assert loc._past(np.array([2.5, 0.0, 0.0]), 1.0)[0] == [0.0]
     # Scored 0.5 now, the same half scores are no miss, back to x = 1 and before it.
-    assert loc._past(np.array([2.5, 0.0, 0.0]), 0.5) == [1.0, 1.0, 1.0, 0.5, 0.5]
+    assert loc._past(np.array([2.5, 0.0, 0.0]), 0.5)[0] == [1.0, 1.0, 1.0, 0.5, 0.5]
 
 
 def test_a_look_alike_that_misses_the_scans_before_is_no_rival():
@@ -306,6 +315,7 @@ class _TwoSpots:
 
     points = np.zeros((0, 2))
     reference = None
+    views = _NoViews()
 
     @staticmethod
     def score(points: np.ndarray, pose: np.ndarray) -> float:
@@ -326,10 +336,26 @@ def test_a_place_found_again_tells_a_look_alike_apart_over_the_scans_it_fitted_s
     loc = Localizer(places=_TwoSpots())
     loc._within = np.ones((10, 2))
     for _ in range(6):  # the robot drove 0.5 m a scan
-        loc._recent.append((np.ones((10, 2)), np.array([0.5, 0.0, 0.0])))
+        loc._recent.append((np.ones((10, 2)), np.array([0.5, 0.0, 0.0]), np.full(10, np.inf)))
     found_again = _hypothesis(1.0, 5, declared=True)
     found_again.scores.extendleft([0.0, 0.0, 0.0])  # the misses while it was lost
     # At x = 3 the scans before fall at 2.5 (explained) and 2.0 (half: a miss).
-    assert loc._told_by_the_past(found_again, np.array([3.0, 0.0, 0.0]))
+    assert loc._told_by_the_past(found_again, np.array([3.0, 0.0, 0.0])) == "scores"
     # At x = 0.5 every scan before is explained as well: a look-alike indeed.
-    assert not loc._told_by_the_past(found_again, np.array([0.5, 0.0, 0.0]))
+    assert loc._told_by_the_past(found_again, np.array([0.5, 0.0, 0.0])) is None
+
+
+def test_views_tell_places_apart_only_where_the_better_agree_and_the_last_scans_say_so_too():
+    """Two places' views (beams contradicted, beams known, a scan each, oldest first)."""
+    seen_apart = localizer_module._seen_clearly_better
+    good, bad = [(1, 180)] * 20, [(10, 180)] * 20  # 0.6 % and 5.6 % of the beams
+    assert seen_apart(good, bad)
+    assert not seen_apart(bad, good)
+    # The better place's own views contradict 11 % of the beams: they tell nothing.
+    assert not seen_apart([(20, 180)] * 20, [(60, 180)] * 20)
+    # The other was still settling: clearly worse over the window, not over its last scans.
+    assert not seen_apart([(0, 180)] * 20, [(10, 180)] * 15 + [(0, 180)] * 5)
+    # Fewer than MIN_VIEWS scans with a view at both (no view: (0, 0)).
+    assert not seen_apart([(0, 0)] * 16 + good[:4], bad)
+    # A margin: 1 % against 2 % is no clear difference, however many beams.
+    assert not seen_apart([(2, 200)] * 20, [(4, 200)] * 20)
