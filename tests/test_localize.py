@@ -324,4 +324,4 @@ def test_rack_bays_alike_by_their_end_points_are_told_apart_by_the_saved_views()
     res = LocalizationRun(_saved("warehouse"), FrameList(frames[a:a + n], "warehouse", ref)).run()
     assert _first_right(res, 0, n) <= WITHIN
     assert (res.errors()[res.localized] <= 0.5).all()
-    assert res.stats["places told apart by the map's views"] >= 1
+    assert res.stats["scans whose rivals the map's views told apart"] >= 1

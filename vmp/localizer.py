@@ -684,7 +684,7 @@ class Localizer:
             others = [o for o in self.hypotheses
                       if o is not h and (o in contenders or _rival(o, h))]
             if all(_seen_clearly_better(*_over_common_views(h, o)) for o in others):
-                self.stats["places told apart by the map's views"] += 1
+                self.stats["scans whose rivals the map's views told apart"] += 1
                 return h
         return None
 
