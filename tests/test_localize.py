@@ -35,6 +35,12 @@ def _run(name: str, seed: int) -> tuple[list, np.ndarray]:
     return list(sim), sim.reference().poses
 
 
+def _localize(name: str, frames: list, truth: np.ndarray):
+    """``frames`` of a scenario localized in its saved map, ``truth`` their poses."""
+    ref = Reference(np.asarray(truth), "ground truth", True)
+    return LocalizationRun(_saved(name), FrameList(frames, name, ref)).run()
+
+
 def _first_right(res, start: int, stop: int) -> int | None:
     err = res.errors()
     for k in range(start, stop):
@@ -46,8 +52,7 @@ def _first_right(res, start: int, stop: int) -> int | None:
 def test_localizes_another_run_from_no_pose_and_tracks_it():
     frames, truth = _run("lab", 5)
     a, n = 400, 200
-    ref = Reference(truth[a:a + n], "ground truth", True)
-    res = LocalizationRun(_saved("lab"), FrameList(frames[a:a + n], "lab", ref)).run()
+    res = _localize("lab", frames[a:a + n], truth[a:a + n])
     assert _first_right(res, 0, n) is not None and _first_right(res, 0, n) <= WITHIN
     err = res.errors()
     loc = res.localized
@@ -62,11 +67,10 @@ def test_a_kidnapped_robot_is_found_again_where_it_was_carried():
     a, b, n = 100, 700, 120
     assert np.hypot(*(truth[b, :2] - truth[a + n - 1, :2])) > 3.0
     joined = carried([frames[a:a + n], frames[b:b + n]])
-    ref = Reference(np.vstack([truth[a:a + n], truth[b:b + n]]), "ground truth", True)
-    res = LocalizationRun(_saved("lab"), FrameList(joined, "lab", ref)).run()
+    res = _localize("lab", joined, np.vstack([truth[a:a + n], truth[b:b + n]]))
     err = res.errors()
     loc = res.localized
-    starts = np.flatnonzero(loc & ~np.concatenate([[False], loc[:-1]]))
+    starts = res.declarations
     assert (err[starts] <= 0.5).all(), "a wrong place was declared"
     assert _first_right(res, 0, n) <= WITHIN
     assert _first_right(res, n, 2 * n) <= WITHIN
@@ -268,8 +272,7 @@ def test_a_robot_carried_a_few_metres_along_an_aisle_is_not_left_localized_at_th
     frames, truth = _run("warehouse", 100)
     a, b, n = 1756, 1862, 150
     joined = carried([frames[a:a + n], frames[b:b + n]])
-    ref = Reference(np.vstack([truth[a:a + n], truth[b:b + n]]), "ground truth", True)
-    res = LocalizationRun(_saved("warehouse"), FrameList(joined, "warehouse", ref)).run()
+    res = _localize("warehouse", joined, np.vstack([truth[a:a + n], truth[b:b + n]]))
     err = res.errors()
     loc = res.localized
     assert _first_right(res, 0, n) <= WITHIN
@@ -287,8 +290,7 @@ def test_a_look_alike_along_the_path_clearly_worse_over_the_scans_stops_holding_
     # decision for 41).
     frames, truth = _run("warehouse", 107)
     a, n = 241, 60
-    ref = Reference(truth[a:a + n], "ground truth", True)
-    res = LocalizationRun(_saved("warehouse"), FrameList(frames[a:a + n], "warehouse", ref)).run()
+    res = _localize("warehouse", frames[a:a + n], truth[a:a + n])
     assert _first_right(res, 0, n) <= WITHIN
     assert (res.errors()[res.localized] <= 0.5).all()
 
@@ -303,12 +305,11 @@ def test_a_robot_carried_back_along_its_aisle_beyond_the_doubt_window_is_found()
     a, b, n = 1272, 1239, 150
     assert np.hypot(*(truth[b, :2] - truth[a + n - 1, :2])) > 14.0  # the premise
     joined = carried([frames[a:a + n], frames[b:b + n]])
-    ref = Reference(np.vstack([truth[a:a + n], truth[b:b + n]]), "ground truth", True)
-    res = LocalizationRun(_saved("warehouse"), FrameList(joined, "warehouse", ref)).run()
+    res = _localize("warehouse", joined, np.vstack([truth[a:a + n], truth[b:b + n]]))
     assert _first_right(res, 0, n) <= WITHIN
     assert _first_right(res, n, 2 * n) <= WITHIN
     err = res.errors()
-    starts = np.flatnonzero(res.localized & ~np.concatenate([[False], res.localized[:-1]]))
+    starts = res.declarations
     assert (err[starts] <= 0.5).all(), "a wrong place was declared"
 
 
@@ -320,8 +321,7 @@ def test_rack_bays_alike_by_their_end_points_are_told_apart_by_the_saved_views()
     # localized after 16.
     frames, truth = _run("warehouse", 104)
     a, n = 1611, 60
-    ref = Reference(truth[a:a + n], "ground truth", True)
-    res = LocalizationRun(_saved("warehouse"), FrameList(frames[a:a + n], "warehouse", ref)).run()
+    res = _localize("warehouse", frames[a:a + n], truth[a:a + n])
     assert _first_right(res, 0, n) <= WITHIN
     assert (res.errors()[res.localized] <= 0.5).all()
     assert res.stats["scans whose rivals the map's views told apart"] >= 1

@@ -7,17 +7,18 @@ import math
 import numpy as np
 from conftest import mapped
 
+from vmp.mapfile import MapData
 from vmp.types import compose
 from vmp.views import SavedViews
 
 
 def _views() -> tuple[SavedViews, np.ndarray, np.ndarray]:
+    """The warehouse's saved map as views, its scan poses and its scans' ranges."""
     r = mapped("warehouse")
-    vmap = r.pipeline.map
-    hits = vmap.scan_hits(range(len(vmap)))
-    reach = np.hypot(*np.moveaxis(vmap.end_points.astype(np.float64), -1, 0))
-    ranges = np.where(hits, reach, np.inf)
-    return SavedViews(vmap, r.trajectory), r.trajectory, ranges
+    p = r.pipeline
+    saved = MapData(p.map, p.milestones, p.back.graph, {}, r.stamps, r.trajectory)
+    ranges = np.array([f.ranges for f in saved.frames()])
+    return SavedViews(p.map, r.trajectory), r.trajectory, ranges
 
 
 def test_a_stored_scan_agrees_with_its_own_view_and_not_with_the_bay_along_the_aisle():

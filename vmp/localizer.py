@@ -184,7 +184,7 @@ View = tuple[int, int]  # live beams a place's view contradicts, and those it kn
 NO_VIEW: View = (0, 0)
 
 
-@dataclass
+@dataclass(eq=False)  # one place followed: compared by identity
 class Hypothesis:
     """A place the robot may be: its filter, how it has fitted, what it has outlived."""
 
@@ -544,8 +544,7 @@ class Localizer:
         places followed that the views tell from ``h`` are not looked for; one a search
         finds that only the views tell apart is followed, to be compared with whichever
         place is best."""
-        known = [h.pose] + [o.pose for o in self.hypotheses
-                            if o is not h and _seen_clearly_better(*_over_common_views(h, o))]
+        known = [h.pose] + [o.pose for o in self._seen_apart(h)]
         followed = False
         for _ in range(MAX_ALIKE):
             found = self._near(h, _least_as_well, known)
@@ -657,7 +656,7 @@ class Localizer:
             # (Unchecked for a look-alike nearby, the simulated office's old place resumed
             # after a kidnap to another stretch of its pilastered corridor.)
             return self._declare(resumed, "times the lost place resumed")
-        best = self._told_apart(max(fitting, key=lambda h: h.score), fitting)
+        best = self._told_apart(max(fitting, key=lambda h: h.score))
         if best is None:
             return State.AMBIGUOUS
         if best.searches < MIN_SEARCHES or best.fits < MIN_FITS or best.score < MIN_SCORE:
@@ -670,7 +669,7 @@ class Localizer:
             return State.AMBIGUOUS
         return self._declare(best, "times localized")
 
-    def _told_apart(self, best: Hypothesis, fitting: list[Hypothesis]) -> Hypothesis | None:
+    def _told_apart(self, best: Hypothesis) -> Hypothesis | None:
         """The place among ``best`` (the best score) and its rivals (:func:`_rival`) that
         the saved map's views tell from every other: ``best`` when it has no rival, the one
         fitting place whose views agree clearly better with the scans than those of every
@@ -680,13 +679,19 @@ class Localizer:
         if not rivals:
             return best
         contenders = [best, *rivals]
-        for h in sorted((h for h in contenders if h in fitting), key=_view_share):
-            others = [o for o in self.hypotheses
-                      if o is not h and (o in contenders or _rival(o, h))]
-            if all(_seen_clearly_better(*_over_common_views(h, o)) for o in others):
+        for h in sorted((h for h in contenders if h.misses == 0), key=_view_share):
+            apart = self._seen_apart(h)
+            if all(o in apart for o in self.hypotheses
+                   if o is not h and (o in contenders or _rival(o, h))):
                 self.stats["scans whose rivals the map's views told apart"] += 1
                 return h
         return None
+
+    def _seen_apart(self, best: Hypothesis) -> list[Hypothesis]:
+        """The places followed whose views agree clearly worse with the scans than those of
+        ``best`` (:func:`_seen_clearly_better`)."""
+        return [h for h in self.hypotheses
+                if h is not best and _seen_clearly_better(*_over_common_views(best, h))]
 
     def _elsewhere(self, best: Hypothesis) -> bool:
         """Whether the scan fits about as well somewhere along the saved path far from
@@ -712,9 +717,7 @@ class Localizer:
         best.alike = False
         # The places followed and told apart from the best already are not looked for again;
         # one not told apart is, and holds the decision when found.
-        seen_apart = [h.pose for h in self.hypotheses if h is not best
-                      and not _left_behind(h, best)
-                      and _seen_clearly_better(*_over_common_views(best, h))]
+        seen_apart = [h.pose for h in self._seen_apart(best) if not _left_behind(h, best)]
         left = [h.pose for h in self.hypotheses if h is best or _left_behind(h, best)]
         left += seen_apart
         for _ in range(MAX_ALIKE):
