@@ -11,7 +11,8 @@ the start and of the kidnap, the median scans it took, wrong fixes (declared loc
 0.5 m from the truth), the scans still localized at the old place after the kidnap (before the
 scans stop fitting there), the runs still localized there 30 scans after it, and the scans
 ambiguous; and how many starts and kidnaps the world itself tells apart from every other place
-on the path within 30 scans (:func:`told_apart`), and how many of those were localized.
+on the path within 30 scans (:func:`look_alikes`), how many of those were localized, and
+how many look the same as another place on every beam of those 30 scans.
 
 Real (every log in ../shared/data with a relations file): the first half of the log is mapped,
 the second half localized in that map from no pose, and scored on the relations whose two
@@ -70,7 +71,7 @@ PASSED_XY = 1.0  # a second-half scan this near (m) ...
 PASSED_THETA = math.radians(45.0)  # ... and facing this close to a first-half scan: "passed"
 CARRIED = 3.0  # the kidnap carries the robot at least this far (m)
 # A place on the path looks like another when every scan from it matches the other's this
-# closely (m) on this share of the beams (:func:`told_apart`).
+# closely (m) on this share of the beams (:func:`look_alikes`).
 LOOK_ALIKE_RANGE = 0.1
 LOOK_ALIKE_BEAMS = 0.95
 SIM = ("office", "warehouse", "lab", "corridor")
@@ -95,22 +96,25 @@ def recovery(res: LocalizationResult, start: int, stop: int) -> int | None:
     return None
 
 
-def told_apart(sim: Simulator, truth: FloatArray, start: int) -> bool:
+def look_alikes(sim: Simulator, truth: FloatArray, start: int) -> tuple[bool, bool]:
     """Whether the world itself tells the place of scan ``start`` from every other place on
-    the path within :data:`WITHIN` scans: no other scan pose of the run (0.5 m or more away)
-    from which the same motion would have seen the same, every scan within
-    :data:`LOOK_ALIKE_RANGE` on :data:`LOOK_ALIKE_BEAMS` of its beams (ranges cast in the
-    world without noise, no return alike). Where it does not, no localizer can say where the
-    robot is that soon (the warehouse's middle aisle between two rows of identical bays: the
-    bay 2.5 m on looks the same until an end of the rows comes within the 8 m of the
-    scanner)."""
+    the path within :data:`WITHIN` scans, and whether some other place looks the same on
+    every beam. A look-alike is another scan pose of the run (0.5 m or more away) from which
+    the same motion would have seen the same, every scan within :data:`LOOK_ALIKE_RANGE` on
+    :data:`LOOK_ALIKE_BEAMS` of its beams (ranges cast in the world without noise, no return
+    alike); where there is one, no localizer can say where the robot is that soon (the
+    warehouse's middle aisle between two rows of identical bays: the bay 2.5 m on looks the
+    same until an end of the rows comes within the 8 m of the scanner). Where one looks the
+    same on every beam of every scan, nothing in the scans can tell the two apart, however
+    well the localizer weighs them."""
     stop = min(start + WITHIN, len(truth))
     motion = np.array([relative(truth[start], p) for p in truth[start:stop]])
     seen = sim.ranges_at(truth[start:stop])
     others = truth[np.hypot(*(truth[:, :2] - truth[start, :2]).T) > WRONG_FIX]
+    every = np.ones(len(others), dtype=bool)  # alike on every beam so far
     for k in range(len(motion)):  # the candidates thinned scan after scan: a few dozen left
         if len(others) == 0:
-            return True
+            return True, False
         c, s = np.cos(others[:, 2]), np.sin(others[:, 2])
         dx, dy, dth = motion[k]
         moved = np.column_stack([others[:, 0] + c * dx - s * dy, others[:, 1] + s * dx + c * dy,
@@ -119,8 +123,10 @@ def told_apart(sim: Simulator, truth: FloatArray, start: int) -> bool:
         both_none = np.isinf(cast) & np.isinf(seen[k])
         with np.errstate(invalid="ignore"):  # inf - inf: no return from either
             close = np.abs(cast - seen[k]) <= LOOK_ALIKE_RANGE
-        others = others[(both_none | close).mean(axis=1) >= LOOK_ALIKE_BEAMS]
-    return len(others) == 0
+        alike = (both_none | close).mean(axis=1)
+        keep = alike >= LOOK_ALIKE_BEAMS
+        others, every = others[keep], every[keep] & (alike[keep] == 1.0)
+    return len(others) == 0, bool(every.any())
 
 
 def sim_run(name: str, smap: MapData, seed: int) -> dict:
@@ -143,7 +149,7 @@ def sim_run(name: str, smap: MapData, seed: int) -> dict:
     after = np.arange(res.scans) >= STRETCH
     return {"seed": seed, "start": recovery(res, 0, STRETCH),
             "kidnap": recovery(res, STRETCH, 2 * STRETCH),
-            "told": (told_apart(sim, truth, a), told_apart(sim, truth, b)),
+            "alike": (look_alikes(sim, truth, a), look_alikes(sim, truth, b)),
             "wrong": int((err[starts] > WRONG_FIX).sum()),
             "stale": int((loc & after & (err > WRONG_FIX)).sum()),
             "ambiguous": sum(s is State.AMBIGUOUS for s in res.states),
@@ -159,12 +165,14 @@ def simulated(names: list[str], runs: int) -> list[dict]:
         results = [sim_run(name, smap, 100 + i) for i in range(runs)]
         both = [r["start"] for r in results] + [r["kidnap"] for r in results]
         ok = [k for k in both if k is not None and k <= WITHIN]
-        told = [r["told"][0] for r in results] + [r["told"][1] for r in results]  # as both
+        alike = [r["alike"][0] for r in results] + [r["alike"][1] for r in results]  # as both
+        told = [a[0] for a in alike]
         told_ok = [k for k, t in zip(both, told, strict=True)
                    if t and k is not None and k <= WITHIN]
         took = [k for k in both if k is not None]
         row = {"name": name, "runs": runs, "within": len(ok), "of": len(both),
                "told": sum(told), "told_within": len(told_ok),
+               "same": sum(a[1] for a in alike),
                "median": statistics.median(took) if took else math.nan,
                "never": sum(k is None for k in both),
                "wrong": sum(r["wrong"] for r in results),
@@ -177,7 +185,8 @@ def simulated(names: list[str], runs: int) -> list[dict]:
         print(f"{name}: {row['within']} of {row['of']} starts and kidnaps localized within "
               f"{WITHIN} scans (median {row['median']}, never {row['never']}); the world tells "
               f"{row['told']} of them from every other place on the path within {WITHIN} "
-              f"scans, and {row['told_within']} of those were localized; wrong fixes "
+              f"scans, and {row['told_within']} of those were localized; {row['same']} look "
+              f"the same as another place on every beam of {WITHIN} scans; wrong fixes "
               f"{row['wrong']}; scans at the old place after a kidnap (median) {row['stale']}, "
               f"runs still there after {WITHIN} scans {row['stuck']}; "
               f"ambiguous scans {row['ambiguous']}; localizing {row['rate']:.0f} scans/s, "
@@ -366,14 +375,19 @@ def table(sim: list[dict], rows: list[dict], runs: int, repeat: int = 3) -> str:
                   f"sees the same: every scan within {LOOK_ALIKE_RANGE:g} m on "
                   f"{LOOK_ALIKE_BEAMS:.0%} of its beams, cast without noise), and how many "
                   f"of those were localized within {WITHIN} scans: where the world does not "
-                  "tell them apart, no localizer can say where the robot is that soon.", "",
+                  "tell them apart, no localizer can say where the robot is that soon. "
+                  "\"The same\": the starts and kidnaps with another place on the path from "
+                  f"which every beam of those {WITHIN} scans reads within "
+                  f"{LOOK_ALIKE_RANGE:g} m the same: a localizer that declared either would "
+                  "be guessing.", "",
                   f"| scenario | localized within {WITHIN} scans (starts + kidnaps) | told "
-                  "apart: of them, localized | median "
+                  "apart: of them, localized | the same on every beam | median "
                   "scans | never | wrong fixes | stale | stuck | ambiguous scans | scans/s: "
-                  "localizing, tracking, mapping |", "|---|---|---|---|---|---|---|---|---|---|"]
+                  "localizing, tracking, mapping |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in sim:
             lines.append(f"| {r['name']} | {r['within']} of {r['of']} | "
-                         f"{r['told']}: {r['told_within']} | {r['median']} | "
+                         f"{r['told']}: {r['told_within']} | {r['same']} | {r['median']} | "
                          f"{r['never']} | {r['wrong']} | {r['stale']} | {r['stuck']} | "
                          f"{r['ambiguous']} | "
                          f"{r['rate']:.0f}, {r['tracking']:.0f}, {r['map_rate']:.0f} |")

@@ -209,8 +209,8 @@ class _NoViews:
     """A saved map's views that know nothing of any place."""
 
     @staticmethod
-    def disagreement(ranges: np.ndarray, pose: np.ndarray) -> tuple[int, int]:
-        return 0, 0
+    def disagreements(ranges: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        return np.zeros((len(poses), 2), dtype=np.int64)
 
 
 class _Field:
@@ -231,10 +231,11 @@ def test_a_place_proposed_later_is_scored_on_the_scans_before_it_carried_back():
     KEEP_RATIO of its score now) counts 0 and ends its past."""
     loc = Localizer(places=_Field())
     step = np.array([0.5, 0.0, 0.0])
+    loc._ranges = np.full(10, np.inf)  # this scan's
     for _ in range(6):
         loc._recent.append((np.ones((10, 2)), step, np.full(10, np.inf)))
     # Every scan before explained where a place at x = 1 puts it (x = 0.5, 0, -0.5, ...).
-    assert loc._past(np.array([1.0, 0.0, 0.0]), 1.0) == ([1.0] * 5, [(0, 0)] * 5)
+    assert loc._past(np.array([1.0, 0.0, 0.0]), 1.0) == ([1.0] * 5, [(0, 0)] * 5, (0, 0))
     # From x = 2.5: the scans before at 2.0 and 1.5 score half (a miss against 1.0 at 0.8),
     # so the first back ends the past with a 0.
     assert loc._past(np.array([2.5, 0.0, 0.0]), 1.0)[0] == [0.0]
@@ -334,7 +335,7 @@ def test_a_place_found_again_tells_a_look_alike_apart_over_the_scans_it_fitted_s
     part's second half started 4 scans late stayed ambiguous for 544 scans."""
     monkeypatch.setattr(localizer_module, "register", lambda *a, **k: None)
     loc = Localizer(places=_TwoSpots())
-    loc._within = np.ones((10, 2))
+    loc._within, loc._ranges = np.ones((10, 2)), np.full(10, np.inf)  # this scan's
     for _ in range(6):  # the robot drove 0.5 m a scan
         loc._recent.append((np.ones((10, 2)), np.array([0.5, 0.0, 0.0]), np.full(10, np.inf)))
     found_again = _hypothesis(1.0, 5, declared=True)

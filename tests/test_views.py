@@ -8,7 +8,8 @@ import numpy as np
 from conftest import mapped
 
 from vmp.mapfile import MapData
-from vmp.types import compose
+from vmp.types import BeamGeometry, compose
+from vmp.vector_map import VectorMap
 from vmp.views import SavedViews
 
 
@@ -41,3 +42,34 @@ def test_a_place_the_map_never_saw_has_no_view():
     assert views.disagreement(ranges[0], poses[0] + [100.0, 100.0, 0.0]) == (0, 0)
     # On the path but facing the other way: the stored scans there look elsewhere.
     assert views.disagreement(ranges[0], compose(poses[0], [0.0, 0.0, math.pi])) == (0, 0)
+
+
+def _one_scan_views(geometry: BeamGeometry, ranges: np.ndarray) -> SavedViews:
+    """Views of a map of one scan, taken at the origin facing along x."""
+    vm = VectorMap(geometry)
+    vm.new_segment(0)
+    vm.insert(ranges, np.zeros(3))
+    return SavedViews(vm, np.zeros((1, 3)))
+
+
+def test_a_beam_is_compared_with_its_neighbours_view_around_the_circle_only_where_there_is_one():
+    """A live beam agrees with the view in its bearing or one beam either side. The first and
+    last beams of a scanner that sweeps 180 degrees are no neighbours; those of one that
+    sweeps the whole circle are."""
+    stored = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    live = stored[[4, 1, 2, 3, 0]]  # the ends swapped: each reads what the other end saw
+    half = BeamGeometry(5, -math.pi / 2, math.pi / 4, 8.0)
+    assert _one_scan_views(half, stored).disagreement(live, np.zeros(3)) == (2, 5)
+    circle = BeamGeometry(5, 0.0, 2 * math.pi / 5, 8.0)
+    assert _one_scan_views(circle, stored).disagreement(live, np.zeros(3)) == (0, 5)
+
+
+def test_many_places_are_looked_at_in_one_call_as_one_at_a_time():
+    views, poses, ranges = _views()
+    rng = np.random.default_rng(1)
+    picked = rng.choice(len(poses), 40, replace=False)
+    places = poses[picked] + rng.normal(0.0, [0.3, 0.3, 0.2], (40, 3))
+    one_by_one = [views.disagreement(ranges[k], p) for k, p in zip(picked, places, strict=True)]
+    together = views.disagreements(ranges[picked], places)
+    assert [tuple(v) for v in together.tolist()] == one_by_one
+    assert (together[:, 1] == 0).any() and (together[:, 1] > 0).any()  # some have no view

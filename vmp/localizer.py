@@ -315,9 +315,13 @@ class Localizer:
         self._odometry = compose(self._odometry, u)
         self._ranges = frame.ranges
         self._recent.append((self._within, u, frame.ranges))
+        fitted = []
         for h in self.hypotheses:
             h.filter.predict(u, q)
-            self._track(h)
+            score = self._track(h)
+            if score is not None:
+                fitted.append((h, score))
+        self._record(fitted)
         proposals: list[Proposal] = []
         trusted = self._trusted()
         if self.scan - self._last_search >= SEARCH_EVERY:
@@ -400,15 +404,16 @@ class Localizer:
     def _start(self, pose: FloatArray, cov: FloatArray) -> Hypothesis:
         return Hypothesis(PoseFilter(pose, cov, self.config.motion))
 
-    def _track(self, h: Hypothesis) -> None:
+    def _track(self, h: Hypothesis) -> float | None:
         """Register the scan where ``h`` puts it; a close fit within its gate corrects it,
-        a scan that scores less than usual there is a miss."""
+        a scan that scores less than usual there is a miss (recorded). The score of a scan
+        that fits, to be recorded with its view (:meth:`_record`); None for a miss."""
         places, near = self.places, self._within
         if len(near) < MIN_POINTS or len(places.points) < MIN_POINTS:  # nothing to match
             h.misses += 1
             h.streak = 0
             h.record(0.0, NO_VIEW)
-            return
+            return None
         update = False
         # A place trusted is registered every TRACK_EVERY; one followed, whenever the robot
         # does not stand still.
@@ -435,16 +440,24 @@ class Localizer:
             h.misses += 1
             h.streak = 0
             h.record(0.0, NO_VIEW)
-            return
+            return None
         if update:
             h.filter.update(reg.pose, reg.covariance)
         h.misses = 0
         h.fits += 1
         h.streak += 1
         h.fitted.append(score)
-        # A place tracked alone is compared with none: its view is not looked at.
-        alone = h.trusted and len(self.hypotheses) == 1
-        h.record(score, NO_VIEW if alone else self._view(self._ranges, h.pose))
+        return score
+
+    def _record(self, fitted: list[tuple[Hypothesis, float]]) -> None:
+        """Record the scores of the places ``fitted`` this scan, each with its view (one call
+        for all). A place tracked alone is compared with none: its view is not looked at."""
+        if len(fitted) == 1 and fitted[0][0].trusted and len(self.hypotheses) == 1:
+            fitted[0][0].record(fitted[0][1], NO_VIEW)
+            return
+        views = self._views([self._ranges] * len(fitted), [h.pose for h, _ in fitted])
+        for (h, score), view in zip(fitted, views, strict=True):
+            h.record(score, view)
 
     def _follow(self, pose: FloatArray) -> None:
         """Follow the place ``pose`` (scored there as a tracked scan is), unless one followed
@@ -454,20 +467,24 @@ class Localizer:
         cov = rotate_covariance(np.diag(np.square(PROPOSAL_SIGMA)), pose[2])
         h = self._start(pose, cov)
         score = self.places.score(self._within, pose)
-        h.record(score, self._view(self._ranges, pose))
+        h.past, h.past_views, view = self._past(pose, score)
+        h.record(score, view)
         h.fitted.append(score)
-        h.past, h.past_views = self._past(pose, score)
         self.hypotheses.append(h)
 
-    def _view(self, ranges: FloatArray, pose: FloatArray) -> View:
-        """The live beams (``ranges``) the saved map's view from ``pose`` contradicts, and
-        those it knows (:meth:`vmp.views.SavedViews.disagreement`)."""
-        return self.places.views.disagreement(ranges, pose)
+    def _views(self, ranges: list[FloatArray], poses: list[FloatArray]) -> list[View]:
+        """The live beams (each of ``ranges``) the saved map's view from each of ``poses``
+        contradicts, and those it knows (:meth:`vmp.views.SavedViews.disagreements`)."""
+        if not poses:
+            return []
+        found = self.places.views.disagreements(np.array(ranges), np.array(poses))
+        return [(int(wrong), int(known)) for wrong, known in found]
 
-    def _past(self, pose: FloatArray, score: float) -> tuple[list[float], list[View]]:
+    def _past(self, pose: FloatArray, score: float) -> tuple[list[float], list[View], View]:
         """The scores and views of the scans before this one, oldest first, had the robot been at
         ``pose`` now and moved as scan odometry says: back to the first that misses
-        (:data:`KEEP_RATIO` of ``score``), which counts 0, or :data:`WINDOW` scans back.
+        (:data:`KEEP_RATIO` of ``score``), which counts 0, or :data:`WINDOW` scans back; and
+        this scan's view from ``pose``.
 
         A place found later than another was compared with it only over the scans since,
         and a look-alike found a few scans after the right place could stay its rival for
@@ -477,7 +494,7 @@ class Localizer:
         (The bays along an aisle often stay alike: the endpoint score cannot see what tells
         them apart in the world, a beam that would stop short or pass a rack's end.)"""
         out: list[float] = []
-        views: list[View] = []
+        seen: list[tuple[FloatArray, FloatArray]] = [(self._ranges, pose)]  # ranges, pose
         recent = list(self._recent)
         for k in range(len(recent) - 1, 0, -1):  # WINDOW scans at most
             pose = compose(pose, inverse(recent[k][1]))
@@ -485,11 +502,12 @@ class Localizer:
             past = self.places.score(points, pose) if len(points) else 0.0
             if past < KEEP_RATIO * score:
                 out.append(0.0)
-                views.append(NO_VIEW)
                 break
             out.append(past)
-            views.append(self._view(ranges, pose))
-        return out[::-1], views[::-1]
+            seen.append((ranges, pose))
+        now, *views = self._views([r for r, _ in seen], [p for _, p in seen])
+        views += [NO_VIEW] * (len(out) - len(views))  # the miss, if any
+        return out[::-1], views[::-1], now
 
     def _tried_here(self) -> set[int]:
         """The milestones searched from about here (within :data:`RETRY_XY` and
@@ -599,9 +617,9 @@ class Localizer:
         if self.places.fits(reg, self._within, self.config.registration):
             pose = reg.pose
         score = self.places.score(self._within, pose)
-        scores, views = self._past(pose, score)
+        scores, views, now = self._past(pose, score)
         theirs = (scores + [score])[-WINDOW:]
-        their_views = (views + [self._view(self._ranges, pose)])[-WINDOW:]
+        their_views = (views + [now])[-WINDOW:]
         if not _as_well(*_compared(theirs, mine)):
             return "scores"
         if _seen_clearly_better(my_views, their_views, FOUND_VIEW_MARGIN):

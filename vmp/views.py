@@ -69,46 +69,92 @@ class SavedViews:
         """The live beams (``ranges``, ``inf`` without a return) that the view from ``pose``
         (map frame) contradicts, and those it knows, for the stored scan nearby that agrees
         best; (0, 0) where the map holds no view of ``pose``."""
-        rows = self._near(pose)
+        wrong, known = self.disagreements(np.asarray(ranges)[None], np.asarray(pose)[None])[0]
+        return int(wrong), int(known)
+
+    def disagreements(self, ranges: FloatArray, poses: FloatArray) -> np.ndarray:
+        """:meth:`disagreement` for each of several scans at once: ``ranges`` ``(N, B)``,
+        ``poses`` ``(N, 3)``; ``(N, 2)`` integers. (One call for the places followed, or for
+        one place's past scans: called a view at a time, the small arrays' overhead cost the
+        search half its speed in the simulated warehouse; docs/benchmarks.md, twenty-third
+        session.)"""
+        ranges = np.asarray(ranges, dtype=np.float64).reshape(-1, self.geometry.num_beams)
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros((len(poses), 2), dtype=np.int64)
+        query, rows = self._near(poses)
         if len(rows) == 0:
-            return 0, 0
-        expected, known = self._render(rows, pose)
+            return out
+        expected, known = self._render(rows, poses[query])
+        live = ranges[query]
         agree = np.zeros(expected.shape, dtype=bool)
-        for shift in range(-SPREAD, SPREAD + 1):  # three shifts of a (K, B) array
-            near = np.roll(expected, shift, axis=1)
+        for near, near_known in self._spread(expected, known):  # three (M, B) arrays
             with np.errstate(invalid="ignore"):  # inf - inf: no return in either, below
-                agree |= np.abs(near - ranges) <= AGREE
-            agree |= np.isinf(near) & np.isinf(ranges) & np.roll(known, shift, axis=1)
+                agree |= np.abs(near - live) <= AGREE
+            agree |= np.isinf(near) & np.isinf(live) & near_known
         agree &= known
         n_known = known.sum(axis=1)
         n_agree = agree.sum(axis=1)
-        share = np.where(n_known >= MIN_KNOWN * len(ranges), n_agree / np.maximum(n_known, 1),
-                         -1.0)
-        best = int(np.argmax(share))
-        if share[best] < 0.0:
-            return 0, 0
-        return int(n_known[best] - n_agree[best]), int(n_known[best])
+        share = np.where(n_known >= MIN_KNOWN * ranges.shape[1],
+                         n_agree / np.maximum(n_known, 1), -1.0)
+        # Per place, the stored scan that agrees best (the nearest among equals): the pairs
+        # come grouped by place, nearest first.
+        order = np.lexsort((-share, query))
+        first = order[np.r_[True, query[order][1:] != query[order][:-1]]]
+        first = first[share[first] >= 0.0]
+        out[query[first], 0] = n_known[first] - n_agree[first]
+        out[query[first], 1] = n_known[first]
+        return out
 
-    def _near(self, pose: FloatArray) -> np.ndarray:
-        """The stored scans taken near ``pose`` and facing about as it faces, nearest first
-        (:data:`CANDIDATES` at most)."""
+    def _spread(self, expected: FloatArray, known: np.ndarray
+                ) -> list[tuple[FloatArray, np.ndarray]]:
+        """The views shifted by each beam offset within :data:`SPREAD`: what beam ``j``
+        would read from beam ``j + shift`` of the view. Around the circle for a scanner that
+        sees all of it; past the ends of a narrower one's sweep, nothing known."""
+        if SPREAD == 0:
+            return [(expected, known)]
+        wrap = self.geometry.full_circle
+        width = ((0, 0), (SPREAD, SPREAD))
+        padded = (np.pad(expected, width, mode="wrap") if wrap
+                  else np.pad(expected, width, constant_values=np.nan))
+        padded_known = np.pad(known, width, mode="wrap") if wrap else np.pad(known, width)
+        beams = expected.shape[1]
+        return [(padded[:, SPREAD + d:SPREAD + d + beams],
+                 padded_known[:, SPREAD + d:SPREAD + d + beams])
+                for d in range(-SPREAD, SPREAD + 1)]
+
+    def _near(self, poses: FloatArray) -> tuple[np.ndarray, np.ndarray]:
+        """Pairs of a place (index into ``poses``) and a stored scan taken near it and facing
+        about as it faces: :data:`CANDIDATES` at most per place, grouped by place, nearest
+        first."""
+        none = np.zeros(0, dtype=np.int64)
         if self._tree is None:
-            return np.zeros(0, dtype=np.int64)
-        rows = np.asarray(self._tree.query_ball_point(pose[:2], NEAR_XY), dtype=np.int64)
-        if len(rows) == 0:
-            return rows
-        poses = self._poses[rows]
-        turn = np.abs((poses[:, 2] - pose[2] + math.pi) % (2 * math.pi) - math.pi)
-        rows, poses = rows[turn <= NEAR_THETA], poses[turn <= NEAR_THETA]
-        apart = np.hypot(poses[:, 0] - pose[0], poses[:, 1] - pose[1])
-        return rows[np.argsort(apart, kind="stable")[:CANDIDATES]]
+            return none, none
+        found = self._tree.query_ball_point(poses[:, :2], NEAR_XY)
+        counts = np.fromiter((len(f) for f in found), dtype=np.int64, count=len(found))
+        if counts.sum() == 0:
+            return none, none
+        query = np.repeat(np.arange(len(poses)), counts)
+        rows = np.fromiter((r for f in found for r in f), dtype=np.int64, count=counts.sum())
+        stored = self._poses[rows]
+        turn = np.abs((stored[:, 2] - poses[query, 2] + math.pi) % (2 * math.pi) - math.pi)
+        facing = turn <= NEAR_THETA
+        query, rows, stored = query[facing], rows[facing], stored[facing]
+        apart = np.hypot(stored[:, 0] - poses[query, 0], stored[:, 1] - poses[query, 1])
+        order = np.lexsort((apart, query))
+        query, rows = query[order], rows[order]
+        # The rank of each pair within its place's group.
+        starts = np.r_[0, np.flatnonzero(query[1:] != query[:-1]) + 1]
+        rank = np.arange(len(query)) - np.repeat(starts, np.diff(np.r_[starts, len(query)]))
+        keep = rank < CANDIDATES
+        return query[keep], rows[keep]
 
-    def _render(self, rows: np.ndarray, pose: FloatArray) -> tuple[FloatArray, np.ndarray]:
-        """Each stored scan of ``rows`` seen from ``pose``: the expected range of every beam
-        (``inf``: free to the scanner's reach) and whether the scan knows it, ``(K, B)``."""
+    def _render(self, rows: np.ndarray, poses: FloatArray) -> tuple[FloatArray, np.ndarray]:
+        """Each stored scan of ``rows`` seen from the place beside it in ``poses``: the
+        expected range of every beam (``inf``: free to the scanner's reach) and whether the
+        scan knows it, ``(M, B)``."""
         g = self.geometry
         beams = g.num_beams
-        at = relative(pose, self._poses[rows])  # the stored scanners, seen from the place
+        at = relative(poses, self._poses[rows])  # the stored scanners, seen from the places
         c, s = np.cos(at[:, 2])[:, None], np.sin(at[:, 2])[:, None]
         px, py = self._points[rows, :, 0], self._points[rows, :, 1]
         x = at[:, 0, None] + c * px - s * py
@@ -119,11 +165,13 @@ class SavedViews:
         if g.full_circle:
             beam %= beams
         inside = beam < beams
-        k = np.broadcast_to(np.arange(len(rows))[:, None], beam.shape)
+        cell = beam + (np.arange(len(rows)) * beams)[:, None]  # (scan, beam), flattened
         hit = inside & self._hits[rows]
-        expected = np.full((len(rows), beams), np.inf)
-        np.minimum.at(expected, (k[hit], beam[hit]), np.hypot(x[hit], y[hit]))
+        expected = np.full(len(rows) * beams, np.inf)
+        # (On one flat index ufunc.at takes numpy's fast path: a third of the time.)
+        np.minimum.at(expected, cell[hit], np.hypot(x[hit], y[hit]))
+        expected = expected.reshape(len(rows), beams)
         known = np.isfinite(expected)
         free = inside & ~self._hits[rows]
-        known[k[free], beam[free]] = True
+        known.ravel()[cell[free]] = True
         return expected, known
