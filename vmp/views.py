@@ -80,6 +80,9 @@ class SavedViews:
         session.)"""
         ranges = np.asarray(ranges, dtype=np.float64).reshape(-1, self.geometry.num_beams)
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        if len(ranges) != len(poses):
+            raise ValueError(f"{len(ranges)} scans of {self.geometry.num_beams} beams for "
+                             f"{len(poses)} places")
         out = np.zeros((len(poses), 2), dtype=np.int64)
         query, rows = self._near(poses)
         if len(rows) == 0:
