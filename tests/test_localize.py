@@ -41,6 +41,16 @@ def _localize(name: str, frames: list, truth: np.ndarray):
     return LocalizationRun(_saved(name), FrameList(frames, name, ref)).run()
 
 
+def _found_soon_never_wrong(name: str, seed: int, a: int, n: int):
+    """Run ``seed`` of scenario ``name`` from scan ``a`` for ``n`` scans, localized with no
+    pose: right within WITHIN scans, and never localized at a wrong place."""
+    frames, truth = _run(name, seed)
+    res = _localize(name, frames[a:a + n], truth[a:a + n])
+    assert _first_right(res, 0, n) is not None and _first_right(res, 0, n) <= WITHIN
+    assert (res.errors()[res.localized] <= 0.5).all()
+    return res
+
+
 def _first_right(res, start: int, stop: int) -> int | None:
     err = res.errors()
     for k in range(start, stop):
@@ -288,11 +298,7 @@ def test_a_look_alike_along_the_path_clearly_worse_over_the_scans_stops_holding_
     # clearly worse (0.96 against 0.998): once that is seen it is left out of the search, and
     # the robot localized within a few scans (found again at every search, it held the
     # decision for 41).
-    frames, truth = _run("warehouse", 107)
-    a, n = 241, 60
-    res = _localize("warehouse", frames[a:a + n], truth[a:a + n])
-    assert _first_right(res, 0, n) <= WITHIN
-    assert (res.errors()[res.localized] <= 0.5).all()
+    _found_soon_never_wrong("warehouse", 107, 241, 60)
 
 
 def test_a_robot_carried_back_along_its_aisle_beyond_the_doubt_window_is_found():
@@ -319,9 +325,5 @@ def test_rack_bays_alike_by_their_end_points_are_told_apart_by_the_saved_views()
     # place does (ambiguous for 33 scans when only they were compared). The saved map's views
     # from those bays contradict 4-10 % of the live beams, the right place's under 1 %:
     # localized after 16.
-    frames, truth = _run("warehouse", 104)
-    a, n = 1611, 60
-    res = _localize("warehouse", frames[a:a + n], truth[a:a + n])
-    assert _first_right(res, 0, n) <= WITHIN
-    assert (res.errors()[res.localized] <= 0.5).all()
+    res = _found_soon_never_wrong("warehouse", 104, 1611, 60)
     assert res.stats["scans whose rivals the map's views told apart"] >= 1

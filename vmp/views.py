@@ -65,18 +65,13 @@ class SavedViews:
         self._hits = hits
         self._tree = cKDTree(self._poses[:, :2]) if len(self._poses) else None
 
-    def disagreement(self, ranges: FloatArray, pose: FloatArray) -> tuple[int, int]:
-        """The live beams (``ranges``, ``inf`` without a return) that the view from ``pose``
-        (map frame) contradicts, and those it knows, for the stored scan nearby that agrees
-        best; (0, 0) where the map holds no view of ``pose``."""
-        wrong, known = self.disagreements(np.asarray(ranges)[None], np.asarray(pose)[None])[0]
-        return int(wrong), int(known)
-
     def disagreements(self, ranges: FloatArray, poses: FloatArray) -> np.ndarray:
-        """:meth:`disagreement` for each of several scans at once: ``ranges`` ``(N, B)``,
-        ``poses`` ``(N, 3)``; ``(N, 2)`` integers. (One call for the places followed, or for
-        one place's past scans: called a view at a time, the small arrays' overhead cost the
-        search half its speed in the simulated warehouse; docs/benchmarks.md, twenty-third
+        """For each live scan (``ranges`` ``(N, B)``, ``inf`` without a return) and place
+        (``poses`` ``(N, 3)``, map frame): the beams the view from the place contradicts, and
+        those it knows, for the stored scan nearby that agrees best; (0, 0) where the map holds
+        no view of the place. ``(N, 2)`` integers. (Many places a call, the places followed or
+        one place's past scans: a view at a time, the small arrays' overhead cost the search
+        half its speed in the simulated warehouse; docs/benchmarks.md, twenty-third
         session.)"""
         ranges = np.asarray(ranges, dtype=np.float64).reshape(-1, self.geometry.num_beams)
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
@@ -113,8 +108,6 @@ class SavedViews:
         """The views shifted by each beam offset within :data:`SPREAD`: what beam ``j``
         would read from beam ``j + shift`` of the view. Around the circle for a scanner that
         sees all of it; past the ends of a narrower one's sweep, nothing known."""
-        if SPREAD == 0:
-            return [(expected, known)]
         wrap = self.geometry.full_circle
         width = ((0, 0), (SPREAD, SPREAD))
         padded = (np.pad(expected, width, mode="wrap") if wrap
