@@ -202,7 +202,7 @@ def test_a_saved_map_too_small_to_match_makes_every_scan_a_miss():
     h = _hypothesis(0.95, 5)
     loc._track(h)
     assert h.misses == 1 and h.streak == 0 and h.scores[-1] == 0.0
-    assert loc._near(h, lambda mine: 0.0) is None
+    assert loc._near(h, lambda mine: 0.0, loc._within) is None
 
 
 class _NoViews:
@@ -241,6 +241,24 @@ def test_a_place_proposed_later_is_scored_on_the_scans_before_it_carried_back():
     assert loc._past(np.array([2.5, 0.0, 0.0]), 1.0)[0] == [0.0]
     # Scored 0.5 now, the same half scores are no miss, back to x = 1 and before it.
     assert loc._past(np.array([2.5, 0.0, 0.0]), 0.5)[0] == [1.0, 1.0, 1.0, 0.5, 0.5]
+
+
+def test_the_searches_for_look_alikes_match_the_scans_the_place_explains_in_this_frame():
+    """Each scan saw one point 1 m ahead. The robot drove 0.5 m, then turned left a quarter:
+    in this scan's frame the scans before saw the same point 1 m and 0.5 m to the right. A
+    search for look-alikes of a place matches the scans it explains in a row only: a scan it
+    missed, and those before, are left out."""
+    loc = Localizer(places=_Field())
+    for step in ([0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, math.pi / 2]):
+        loc._recent.append((np.array([[1.0, 0.0]]), np.array(step), np.full(1, np.inf)))
+    def searched(history: list[float]) -> set[tuple[float, float]]:
+        h = _hypothesis(1.0, 0)
+        h.scores.extend(history)
+        return {tuple(np.round(p, 6) + 0.0) for p in loc._searched_with(h)}
+
+    assert searched([1.0, 1.0, 1.0]) == {(1.0, 0.0), (0.0, -1.0), (0.0, -0.5)}
+    assert searched([1.0, 0.0, 1.0]) == {(1.0, 0.0)}
+    assert searched([0.0, 1.0, 1.0]) == {(1.0, 0.0), (0.0, -1.0)}
 
 
 def test_a_look_alike_that_misses_the_scans_before_is_no_rival():

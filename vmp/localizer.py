@@ -30,6 +30,9 @@ share of points left unexplained can (0.001 against 0.024). The signatures propo
 places with a milestone, and the mapper records none where a view matches one recorded
 already (a corridor of pilasters keeps milestones only near its ends), so before a place is
 declared the scan is also searched along the saved path far from it (:meth:`_elsewhere`).
+These searches for look-alikes match the last scans the place explains, carried into this
+scan's frame, not this scan alone: along aisles of alike bays many poses fit one scan whose
+scans before tell them apart, and a search that found them one by one ran out of its tries.
 
 It stays localized while the scans fit; after :data:`LOST_AFTER` misses in a row it is lost:
 the hypothesis keeps moving with odometry (the robot may just be looking into a room the map
@@ -87,7 +90,15 @@ from vmp.fusion import CHI2_3DOF_99, PoseFilter
 from vmp.places import Places
 from vmp.registration import MIN_POINTS, register
 from vmp.relocalization import Proposal, propose
-from vmp.types import FloatArray, ScanFrame, compose, inverse, relative, rotate_covariance
+from vmp.types import (
+    FloatArray,
+    ScanFrame,
+    compose,
+    inverse,
+    relative,
+    rotate_covariance,
+    transform_points,
+)
 
 __all__ = ["Hypothesis", "Localizer", "State"]
 
@@ -142,6 +153,14 @@ ALIAS_APART = (0.5, math.radians(5.0))
 # Look-alikes of a place a search may find one after another, each told apart by the scans
 # before (:meth:`Localizer._told_by_the_past`), before the place is called ambiguous anyway.
 MAX_ALIKE = 8
+# The searches for look-alikes of a place (:meth:`Localizer._aliased`,
+# :meth:`Localizer._elsewhere`) match the last scans it explains in a row, this many at most,
+# carried into this scan's frame by scan odometry (:meth:`Localizer._searched_with`). With this
+# scan alone, a search along the simulated warehouse's aisles found one after another poses
+# where this scan fitted as well but the scans before did not, and ran out of its tries on
+# them: the start of seed 105 was never declared, though its first scans told the right bay
+# from every other (docs/benchmarks.md, twenty-fourth session).
+SEARCH_SCANS = 10
 # Around each sample of the saved path the scan is searched this far either way (m, rad):
 # the samples lie a metre apart, and the robot at a look-alike stands to the path about as
 # it does at the place.
@@ -384,7 +403,8 @@ class Localizer:
             # here (a room it never saw), and only a further fall is doubted.
             trusted.reference_score = trusted.score
             trusted.doubts = 0
-        found = self._near(trusted, _least_clearly_better)
+        live = search_points(self._points)
+        found = self._near(trusted, _least_clearly_better, live)
         if found is not None and _clearly_better(found[1], found[2], GRID_MARGIN):
             self._follow(found[0])
             return
@@ -394,7 +414,7 @@ class Localizer:
         # simulated warehouse) still fits the old place at 0.85: the saved path is searched
         # too, at the last search of the doubt (the real logs doubt their place now and then
         # where the map is thin; searched at every one, tracking slowed by a fifth on ACES).
-        far = self._along_path(trusted.pose, _least_clearly_better, [trusted.pose])
+        far = self._along_path(trusted.pose, _least_clearly_better, live, [trusted.pose])
         if far is not None:
             self.stats["places found along the path while doubted"] += 1
             self._follow(far.pose)
@@ -563,9 +583,10 @@ class Localizer:
         finds that only the views tell apart is followed, to be compared with whichever
         place is best."""
         known = [h.pose] + [o.pose for o in self._seen_apart(h)]
+        live = self._searched_with(h)
         followed = False
         for _ in range(MAX_ALIKE):
-            found = self._near(h, _least_as_well, known)
+            found = self._near(h, _least_as_well, live, known)
             if found is None or not _as_well(found[1], found[2], GRID_MARGIN):
                 return followed
             told = self._told_by_the_past(h, found[0])
@@ -577,13 +598,12 @@ class Localizer:
             known.append(found[0])
         return True
 
-    def _near(self, h: Hypothesis, least: Callable[[float], float],
+    def _near(self, h: Hypothesis, least: Callable[[float], float], live: FloatArray,
               known: list[FloatArray] | None = None) -> tuple[FloatArray, float, float] | None:
         """The best pose within :data:`ALIAS_WINDOW` of ``h`` and at least
-        :data:`ALIAS_APART` from it and from every ``known`` one (map frame) where this scan
-        scores ``least(mine)`` or more, that score and ``mine`` (the scan's score at ``h``);
-        None when there is none."""
-        live = search_points(self._points)
+        :data:`ALIAS_APART` from it and from every ``known`` one (map frame) where the points
+        ``live`` (in this scan's frame) score ``least(mine)`` or more, that score and ``mine``
+        (their score at ``h``); None when there is none."""
         if len(live) < MIN_POINTS or len(self.places.points) < MIN_POINTS:
             return None
         grid = self.places.grid
@@ -592,6 +612,27 @@ class Localizer:
         other = search(grid, live, h.pose, ALIAS_WINDOW, ALIAS_TURN, least(mine),
                        exclude=(away, *ALIAS_APART))
         return None if other is None else (other.pose, other.score, mine)
+
+    def _searched_with(self, h: Hypothesis) -> FloatArray:
+        """The points a search for look-alikes of ``h`` matches (:func:`search_points`): the
+        last scans ``h`` explains in a row (back to its first miss, :data:`SEARCH_SCANS` at
+        most), each carried into this scan's frame along scan odometry. A look-alike must
+        explain them all, as the scans before are asked to of a place found
+        (:meth:`_told_by_the_past`)."""
+        explained = 0
+        for score in reversed(h.history):
+            if score <= 0.0:
+                break
+            explained += 1
+        recent = list(self._recent)
+        if not recent:  # no scan recorded yet (a localizer asked before its first step)
+            return search_points(self._points)
+        scans = max(1, min(explained, len(recent), SEARCH_SCANS))  # this scan at least
+        carried, at = [], np.zeros(3)  # each scan's frame in this scan's
+        for k in range(len(recent) - 1, len(recent) - 1 - scans, -1):
+            carried.append(transform_points(at, recent[k][0]))
+            at = compose(at, inverse(recent[k][1]))
+        return search_points(np.vstack(carried))
 
     def _told_by_the_past(self, best: Hypothesis, pose: FloatArray) -> str | None:
         """How the scans before this one tell ``pose`` (a search's, registered against the
@@ -738,8 +779,9 @@ class Localizer:
         seen_apart = [h.pose for h in self._seen_apart(best) if not _left_behind(h, best)]
         left = [h.pose for h in self.hypotheses if h is best or _left_behind(h, best)]
         left += seen_apart
+        live = self._searched_with(best)
         for _ in range(MAX_ALIKE):
-            found = self._along_path(best.pose, _least_as_well, left)
+            found = self._along_path(best.pose, _least_as_well, live, left)
             if found is None:
                 return best.alike
             told = self._told_by_the_past(best, found.pose)
@@ -758,14 +800,13 @@ class Localizer:
         best.alike = best.alike or bool(seen_apart)
         return best.alike
 
-    def _along_path(self, pose: FloatArray, least: Callable[[float], float],
+    def _along_path(self, pose: FloatArray, least: Callable[[float], float], live: FloatArray,
                     known: list[FloatArray]) -> Match | None:
         """A pose along the saved path, farther than :data:`ALIAS_WINDOW` from ``pose`` and
-        at least :data:`ALIAS_APART` from every ``known`` one, where this scan scores
-        ``least(mine)`` or more (``mine``: its score at ``pose``), facing the path as the
-        robot faces it at ``pose`` or the other way along it (the first found); None when
-        there is none."""
-        live = search_points(self._points)
+        at least :data:`ALIAS_APART` from every ``known`` one, where the points ``live`` (in
+        this scan's frame) score ``least(mine)`` or more (``mine``: their score at ``pose``),
+        facing the path as the robot faces it at ``pose`` or the other way along it (the first
+        found); None when there is none."""
         if (len(live) < MIN_POINTS or len(self.places.path) == 0
                 or len(self.places.points) < MIN_POINTS):
             return None
