@@ -30,9 +30,9 @@ share of points left unexplained can (0.001 against 0.024). The signatures propo
 places with a milestone, and the mapper records none where a view matches one recorded
 already (a corridor of pilasters keeps milestones only near its ends), so before a place is
 declared the scan is also searched along the saved path far from it (:meth:`_elsewhere`).
-These searches for look-alikes match the last scans the place explains, carried into this
-scan's frame, not this scan alone: along aisles of alike bays many poses fit one scan whose
-scans before tell them apart, and a search that found them one by one ran out of its tries.
+That search matches the last scans the place explains, carried into this scan's frame, not
+this scan alone: along aisles of alike bays many poses fit one scan whose scans before tell
+them apart, and a search that found them one by one ran out of its tries.
 
 It stays localized while the scans fit; after :data:`LOST_AFTER` misses in a row it is lost:
 the hypothesis keeps moving with odometry (the robot may just be looking into a room the map
@@ -153,13 +153,15 @@ ALIAS_APART = (0.5, math.radians(5.0))
 # Look-alikes of a place a search may find one after another, each told apart by the scans
 # before (:meth:`Localizer._told_by_the_past`), before the place is called ambiguous anyway.
 MAX_ALIKE = 8
-# The searches for look-alikes of a place (:meth:`Localizer._aliased`,
-# :meth:`Localizer._elsewhere`) match the last scans it explains in a row, this many at most,
-# carried into this scan's frame by scan odometry (:meth:`Localizer._searched_with`). With this
-# scan alone, a search along the simulated warehouse's aisles found one after another poses
-# where this scan fitted as well but the scans before did not, and ran out of its tries on
-# them: the start of seed 105 was never declared, though its first scans told the right bay
-# from every other (docs/benchmarks.md, twenty-fourth session).
+# The search along the saved path for look-alikes of a place (:meth:`Localizer._elsewhere`)
+# matches the last scans it explains in a row, this many at most, carried into this scan's
+# frame by scan odometry (:meth:`Localizer._searched_with`). With this scan alone, it found
+# along the simulated warehouse's aisles one pose after another where this scan fitted as well
+# but the scans before did not, and ran out of its tries on them: the start of seed 105 was
+# never declared, though its first scans told the right bay from every other. The search
+# nearby (:meth:`Localizer._aliased`) still matches this scan alone: running out of its tries
+# on poses a few decimetres apart is what kept a place 16 m off undeclared in fr079 cut at 0.45
+# (a corridor where the scan fits many poses; docs/benchmarks.md, twenty-fourth session).
 SEARCH_SCANS = 10
 # Around each sample of the saved path the scan is searched this far either way (m, rad):
 # the samples lie a metre apart, and the robot at a look-alike stands to the path about as
@@ -583,7 +585,7 @@ class Localizer:
         finds that only the views tell apart is followed, to be compared with whichever
         place is best."""
         known = [h.pose] + [o.pose for o in self._seen_apart(h)]
-        live = self._searched_with(h)
+        live = search_points(self._points)
         followed = False
         for _ in range(MAX_ALIKE):
             found = self._near(h, _least_as_well, live, known)
@@ -614,11 +616,11 @@ class Localizer:
         return None if other is None else (other.pose, other.score, mine)
 
     def _searched_with(self, h: Hypothesis) -> FloatArray:
-        """The points a search for look-alikes of ``h`` matches (:func:`search_points`): the
-        last scans ``h`` explains in a row (back to its first miss, :data:`SEARCH_SCANS` at
-        most), each carried into this scan's frame along scan odometry. A look-alike must
-        explain them all, as the scans before are asked to of a place found
-        (:meth:`_told_by_the_past`)."""
+        """The points the search along the saved path for look-alikes of ``h`` matches
+        (:func:`search_points`): the last scans ``h`` explains in a row (back to its first
+        miss, :data:`SEARCH_SCANS` at most), each carried into this scan's frame along scan
+        odometry. A look-alike must explain them all, as the scans before are asked to of a
+        place found (:meth:`_told_by_the_past`)."""
         explained = 0
         for score in reversed(h.history):
             if score <= 0.0:
