@@ -329,10 +329,10 @@ def test_rack_bays_alike_by_their_end_points_are_told_apart_by_the_saved_views()
     assert res.stats["scans whose rivals the map's views told apart"] >= 1
 
 
-def test_a_search_for_look_alikes_matches_the_scans_the_place_explains_not_this_one_alone():
+def test_the_path_search_for_look_alikes_matches_the_scans_the_place_explains_not_this_one():
     # Warehouse, seed 105: the robot starts at scan 637, where the first scans tell the right
-    # bay from every other. Searched with the last scan alone, the saved path held a dozen
-    # poses that fitted it but not the scans before; the search ran out of its tries on them
-    # each time, and the start was never declared. Searched with the scans the place explains
-    # in a row, those poses fit no more: localized after 6 scans.
+    # bay from every other. Searched with the last scan alone, the saved path held nine poses
+    # that fitted it but not the scans before; the search ran out of its tries on them, and
+    # by the time it was searched again the bays read alike: never declared. Searched with the
+    # scans the place explains in a row, those poses fit no more: localized after 6 scans.
     _found_soon_never_wrong("warehouse", 105, 637, 60)
