@@ -245,9 +245,9 @@ def test_a_place_proposed_later_is_scored_on_the_scans_before_it_carried_back():
 
 def test_the_path_search_matches_the_scans_the_place_explains_carried_into_this_frame():
     """Each scan saw one point 1 m ahead. The robot drove 0.5 m, then turned left a quarter:
-    in this scan's frame the scans before saw the same point 1 m and 0.5 m to the right. A
-    search along the saved path for look-alikes of a place matches the scans it explains in a row only: a scan it
-    missed, and those before, are left out."""
+    in this scan's frame the scans before saw the same point 1 m and 0.5 m to the right. The
+    search along the saved path for look-alikes of a place matches the scans it explains in a
+    row only: a scan it missed, and those before, are left out."""
     loc = Localizer(places=_Field())
     for step in ([0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, math.pi / 2]):
         loc._recent.append((np.array([[1.0, 0.0]]), np.array(step), np.full(1, np.inf)))
