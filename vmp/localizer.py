@@ -627,8 +627,6 @@ class Localizer:
                 break
             explained += 1
         recent = list(self._recent)
-        if not recent:  # no scan recorded yet (a localizer asked before its first step)
-            return search_points(self._points)
         scans = max(1, min(explained, len(recent), SEARCH_SCANS))  # this scan at least
         carried, at = [], np.zeros(3)  # each scan's frame in this scan's
         for k in range(len(recent) - 1, len(recent) - 1 - scans, -1):
