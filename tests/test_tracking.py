@@ -261,6 +261,38 @@ def test_the_path_search_matches_the_scans_the_place_explains_carried_into_this_
     assert searched([0.0, 1.0, 1.0]) == {(1.0, 0.0), (0.0, -1.0)}
 
 
+def test_a_look_alike_nearby_not_told_apart_is_followed_where_the_views_vouch():
+    """The search near the best place finds a pose 2.4 m along that explains the scan as
+    well. Where the scores of the scans before do not tell it apart, it holds the decision
+    (ambiguous), and it is followed if the best place's views agree with the scans (so that
+    the views of the scans to come may tell it apart), not if they tell nothing. Told apart by
+    its views only, it is followed; told apart by its scores, it is neither."""
+    found = np.array([2.4, 0.0, 0.0])
+
+    def searched(told: str | None, contradicted: int = 0) -> tuple[bool, list[np.ndarray]]:
+        loc = Localizer(places=_Field())
+        loc._points, loc._ranges = np.ones((10, 2)), np.full(10, np.inf)
+        best = _hypothesis(1.0, 5)
+        best.views.extend([(contradicted, 100)] * 5)
+        loc.hypotheses = [best]
+
+        def near(h, least, live, known=None):
+            known = [] if known is None else known
+            return None if any(np.allclose(k, found) for k in known) else (found, 1.0, 1.0)
+
+        loc._near = near
+        loc._told_by_the_past = lambda best, pose: told
+        aliased = loc._aliased(best)
+        return aliased, [h.pose for h in loc.hypotheses if h is not best]
+
+    aliased, followed = searched(None)
+    assert aliased and len(followed) == 1 and np.allclose(followed[0], found)
+    assert searched(None, contradicted=20) == (True, [])  # views that tell nothing
+    aliased, followed = searched("views")
+    assert aliased and len(followed) == 1
+    assert searched("scores") == (False, [])
+
+
 def test_a_look_alike_that_misses_the_scans_before_is_no_rival():
     """Two places explain the scans since the second was proposed equally well; the scans
     before tell them apart (the simulated warehouse's bays 2.5 m along an aisle look alike
