@@ -589,11 +589,11 @@ class Localizer:
         :data:`VIEW_MOST` of the beams, so they may tell the two apart on the scans to come):
         found and let go scan after scan, it held the decision for as long as the bays read
         alike (the simulated warehouse's kidnap of seed 116: the bay 2.4 m along the aisle,
-        found at every scan from the 14th to the 44th; followed, its views told it apart at
-        the next scan). Where the views tell nothing, a place followed beside ``h`` only
-        holds the decision longer: the Intel part's second half, localized on 69.5 % of its
-        scans, was on 57.1 % with every such find followed (docs/benchmarks.md,
-        twenty-fifth session)."""
+        found again scan after scan from the 14th, and localized after 45; followed, its
+        views told it apart at the next scan). Where the views tell nothing, a place
+        followed beside ``h`` only holds the decision longer: the Intel part's second half,
+        localized on 69.5 % of its scans, was on 57.1 % with every such find followed
+        (docs/benchmarks.md, twenty-fifth session)."""
         known = [h.pose] + [o.pose for o in self._seen_apart(h)]
         live = search_points(self._points)
         vouched = _view_share(h) <= VIEW_MOST
