@@ -51,6 +51,14 @@ def _found_soon_never_wrong(name: str, seed: int, a: int, n: int):
     return res
 
 
+def _kidnapped(name: str, seed: int, a: int, b: int, n: int = 150, after: int = 60):
+    """Run ``seed`` of scenario ``name`` from scan ``a`` for ``n`` scans, then carried to scan
+    ``b`` (the odometry does not see it) for ``after`` more, localized with no pose."""
+    frames, truth = _run(name, seed)
+    joined = carried([frames[a:a + n], frames[b:b + after]])
+    return _localize(name, joined, np.vstack([truth[a:a + n], truth[b:b + after]]))
+
+
 def _first_right(res, start: int, stop: int) -> int | None:
     err = res.errors()
     for k in range(start, stop):
@@ -344,10 +352,8 @@ def test_a_look_alike_nearby_is_followed_until_the_scans_tell_it_apart():
     # along, which the scores of the scans before did not tell apart; let go, it was found
     # again scan after scan, and the robot was localized after 45. Followed, its views were
     # told apart at the next scan: localized after 15.
-    frames, truth = _run("warehouse", 116)
-    a, b, n = 542, 369, 150
-    joined = carried([frames[a:a + n], frames[b:b + 60]])
-    res = _localize("warehouse", joined, np.vstack([truth[a:a + n], truth[b:b + 60]]))
+    n = 150
+    res = _kidnapped("warehouse", 116, 542, 369, n)
     found = _first_right(res, n, n + 60)
     assert found is not None and found <= WITHIN
     assert (res.errors()[res.declarations] <= 0.5).all(), "a wrong place was declared"
@@ -368,10 +374,8 @@ def test_a_proposal_found_off_in_its_submap_is_moved_to_the_best_pose_in_the_who
     # in the whole map it scored 0.946 there against 1.000 at the right pose, ICP held it
     # where it was, and the right bay was never followed until the aisle's end came into
     # view (localized after 80 scans).
-    frames, truth = _run("warehouse", 119)
-    a, b, n = 980, 2192, 150
-    joined = carried([frames[a:a + n], frames[b:b + 60]])
-    res = _localize("warehouse", joined, np.vstack([truth[a:a + n], truth[b:b + 60]]))
+    n = 150
+    res = _kidnapped("warehouse", 119, 980, 2192, n)
     found = _first_right(res, n, n + 60)
     assert found is not None and found <= WITHIN
     assert (res.errors()[res.declarations] <= 0.5).all(), "a wrong place was declared"
@@ -386,9 +390,6 @@ def test_a_place_that_explains_this_scan_as_well_is_searched_for_though_it_did_n
     # Left out of the search along the saved path as a place followed and no rival, it let
     # the west end be declared, 38 m off; searched for as it explains this scan as well, it
     # holds the decision: ambiguous.
-    frames, truth = _run("corridor", 109)
-    a, b, n = 783, 756, 150
-    joined = carried([frames[a:a + n], frames[b:b + 60]])
-    res = _localize("corridor", joined, np.vstack([truth[a:a + n], truth[b:b + 60]]))
+    res = _kidnapped("corridor", 109, 783, 756)
     err = res.errors()
     assert not (res.localized & (err > 0.5)).any(), "a look-alike stretch was declared"
