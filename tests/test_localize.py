@@ -393,3 +393,17 @@ def test_a_place_that_explains_this_scan_as_well_is_searched_for_though_it_did_n
     res = _kidnapped("corridor", 109, 783, 756)
     err = res.errors()
     assert not (res.localized & (err > 0.5)).any(), "a look-alike stretch was declared"
+
+
+def test_a_place_whose_views_contradict_the_scans_gives_way_to_a_bay_they_agree_with():
+    # Warehouse, seed 123: carried 15.6 m from scan 184 to 1610, to a bay alike. The old
+    # place went on explaining every scan at 0.95-1.00 (localized there, 47 scans), but its
+    # views, contradicting 0-1 of 181 beams before, contradicted 9-17 from the first scan
+    # after; the right bay, found by the search that doubt starts, explains the scans as well
+    # and its views agree.
+    n = 150
+    res = _kidnapped("warehouse", 123, 35, 1610, n)
+    found = _first_right(res, n, n + 60)
+    assert found is not None and found <= WITHIN
+    assert (res.errors()[res.declarations] <= 0.5).all(), "a wrong place was declared"
+    assert res.stats["times a place the views doubted gave way"] >= 1

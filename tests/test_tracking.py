@@ -17,7 +17,7 @@ from drivers import open_source
 from vmp.config import MappingConfig
 from vmp.fusion import PoseFilter
 from vmp.localization import LocalizationRun
-from vmp.localizer import MIN_FITS, Hypothesis, Localizer, State
+from vmp.localizer import MIN_FITS, MIN_VIEWS, Hypothesis, Localizer, State
 from vmp.mapfile import MapData
 from vmp.places import Places, fits_map
 from vmp.registration import Reference as MapReference
@@ -188,6 +188,64 @@ def test_a_doubted_place_that_finds_nothing_better_is_doubted_again_only_after_a
     assert not loc._doubted(old) and old.reference_score == pytest.approx(0.80)
     old.scores = deque([0.5] * 20, maxlen=old.scores.maxlen)
     assert loc._doubted(old)
+
+
+def _watched(views_now: int) -> Hypothesis:
+    """A place trusted and declared where its views vouched for it (1 of 180 beams
+    contradicted a scan), fitting every scan at 1.000, whose views contradict ``views_now``
+    beams on each of its last MIN_VIEWS scans."""
+    old = _trusted(1.0, declared_at=1.0)
+    old.declared_views = [(1, 180)] * 20
+    old.views = deque([(1, 180)] * (20 - MIN_VIEWS) + [(views_now, 180)] * MIN_VIEWS,
+                      maxlen=old.views.maxlen)
+    return old
+
+
+def _followed(score: float, views: int) -> Hypothesis:
+    h = _hypothesis(score, MIN_FITS)
+    h.views = deque([(views, 180)] * MIN_FITS, maxlen=h.views.maxlen)
+    return h
+
+
+def test_a_place_whose_views_contradict_the_scans_gives_way_only_to_one_found_they_agree_with():
+    """Carried to a look-alike bay, the old place still fits every scan by its end points, but
+    its views contradict the scans. Alone, it stays the place (on real logs views vouch only
+    in a good spot); a place followed that explains the scans as well with views that agree
+    clearly better takes over, and the old one does not resume while its views contradict."""
+    loc = Localizer(places=_NoLookAlikes())
+    old = _watched(views_now=15)
+    assert localizer_module._seen_off(old)
+    loc.hypotheses = [old]
+    assert loc._decide() is State.LOCALIZED and old.trusted
+    # A look-alike whose views contradict as much does not unseat it ...
+    loc.hypotheses = [old, _followed(1.0, views=14)]
+    assert loc._decide() is State.LOCALIZED and old.trusted
+    # ... nor one whose views agree but that explains the scans clearly worse.
+    loc.hypotheses = [old, _followed(0.9, views=0)]
+    assert loc._decide() is State.LOCALIZED and old.trusted
+    # One that explains them as well, with views that agree, does.
+    right = _followed(1.0, views=0)
+    loc.hypotheses = [old, right]
+    assert loc._decide() is not State.LOCALIZED or loc._trusted() is not old
+    assert not old.trusted and loc._lost
+    old.streak = MIN_FITS  # fitting scan after scan, its views off: it does not resume
+    assert loc._resumed([old]) is None
+    # Views that agreed when it was declared and still do: never doubted by them.
+    assert not localizer_module._seen_off(_watched(views_now=1))
+
+
+def test_a_place_whose_views_doubt_it_is_no_longer_watched_once_searches_find_no_other():
+    """Where the searches made while its views contradict the scans find no place that
+    explains the scan as well, the views see what the saved map does not hold there: after
+    DOUBT_SEARCHES such searches the place is no longer watched by them."""
+    old = _watched(views_now=15)
+    loc = Localizer(places=_NoLookAlikes())
+    loc.hypotheses = [old]
+    for _ in range(localizer_module.DOUBT_SEARCHES):
+        assert localizer_module._seen_off(old)
+        loc._view_doubt(old)  # no map here: nothing to find
+    assert not localizer_module._seen_off(old) and old.declared_views == []
+    assert loc.stats["searches while the views doubted"] == localizer_module.DOUBT_SEARCHES
 
 
 def test_a_saved_map_too_small_to_match_makes_every_scan_a_miss():
