@@ -223,11 +223,15 @@ def test_a_place_whose_views_contradict_the_scans_gives_way_only_to_one_found_th
     # ... nor one whose views agree but that explains the scans clearly worse.
     loc.hypotheses = [old, _followed(0.9, views=0)]
     assert loc._decide() is State.LOCALIZED and old.trusted
-    # One that explains them as well, with views that agree, does.
+    # One that explains them as well, with views that agree, does; the robot was carried
+    # before it was followed, and the scans before are forgotten.
     right = _followed(1.0, views=0)
+    right.past, right.past_views = [0.9] * 10, [(3, 180)] * 10
+    loc._recent.extend([(np.zeros((0, 2)), np.zeros(3), np.zeros(180))] * 20)
     loc.hypotheses = [old, right]
     assert loc._decide() is not State.LOCALIZED or loc._trusted() is not old
     assert not old.trusted and loc._lost
+    assert right.past == [] and right.past_views == [] and len(loc._recent) == MIN_FITS
     old.streak = MIN_FITS  # fitting scan after scan, its views off: it does not resume
     assert loc._resumed([old]) is None
     # Views that agreed when it was declared and still do: never doubted by them.
