@@ -26,7 +26,8 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vmp.types import FloatArray, relative
+from vmp.jit import kernel
+from vmp.types import FloatArray
 from vmp.vector_map import VectorMap
 
 __all__ = ["AGREE", "SavedViews"]
@@ -78,45 +79,10 @@ class SavedViews:
         if len(ranges) != len(poses):
             raise ValueError(f"{len(ranges)} scans of {self.geometry.num_beams} beams for "
                              f"{len(poses)} places")
-        out = np.zeros((len(poses), 2), dtype=np.int64)
         query, rows = self._near(poses)
-        if len(rows) == 0:
-            return out
-        expected, known = self._render(rows, poses[query])
-        live = ranges[query]
-        agree = np.zeros(expected.shape, dtype=bool)
-        for near, near_known in self._spread(expected, known):  # three (M, B) arrays
-            with np.errstate(invalid="ignore"):  # inf - inf: no return in either, below
-                agree |= np.abs(near - live) <= AGREE
-            agree |= np.isinf(near) & np.isinf(live) & near_known
-        agree &= known
-        n_known = known.sum(axis=1)
-        n_agree = agree.sum(axis=1)
-        share = np.where(n_known >= MIN_KNOWN * ranges.shape[1],
-                         n_agree / np.maximum(n_known, 1), -1.0)
-        # Per place, the stored scan that agrees best (the nearest among equals): the pairs
-        # come grouped by place, nearest first.
-        order = np.lexsort((-share, query))
-        first = order[np.r_[True, query[order][1:] != query[order][:-1]]]
-        first = first[share[first] >= 0.0]
-        out[query[first], 0] = n_known[first] - n_agree[first]
-        out[query[first], 1] = n_known[first]
-        return out
-
-    def _spread(self, expected: FloatArray, known: np.ndarray
-                ) -> list[tuple[FloatArray, np.ndarray]]:
-        """The views shifted by each beam offset within :data:`SPREAD`: what beam ``j``
-        would read from beam ``j + shift`` of the view. Around the circle for a scanner that
-        sees all of it; past the ends of a narrower one's sweep, nothing known."""
-        wrap = self.geometry.full_circle
-        width = ((0, 0), (SPREAD, SPREAD))
-        padded = (np.pad(expected, width, mode="wrap") if wrap
-                  else np.pad(expected, width, constant_values=np.nan))
-        padded_known = np.pad(known, width, mode="wrap") if wrap else np.pad(known, width)
-        beams = expected.shape[1]
-        return [(padded[:, SPREAD + d:SPREAD + d + beams],
-                 padded_known[:, SPREAD + d:SPREAD + d + beams])
-                for d in range(-SPREAD, SPREAD + 1)]
+        g = self.geometry
+        return _disagreements(self._points, self._hits, self._poses, rows, query, poses, ranges,
+                              g.angle_min, g.angle_increment, g.full_circle, MIN_KNOWN)
 
     def _near(self, poses: FloatArray) -> tuple[np.ndarray, np.ndarray]:
         """Pairs of a place (index into ``poses``) and a stored scan taken near it and facing
@@ -130,44 +96,110 @@ class SavedViews:
         if counts.sum() == 0:
             return none, none
         query = np.repeat(np.arange(len(poses)), counts)
-        rows = np.fromiter((r for f in found for r in f), dtype=np.int64, count=counts.sum())
-        stored = self._poses[rows]
-        turn = np.abs((stored[:, 2] - poses[query, 2] + math.pi) % (2 * math.pi) - math.pi)
-        facing = turn <= NEAR_THETA
-        query, rows, stored = query[facing], rows[facing], stored[facing]
-        apart = np.hypot(stored[:, 0] - poses[query, 0], stored[:, 1] - poses[query, 1])
-        order = np.lexsort((apart, query))
-        query, rows = query[order], rows[order]
-        # The rank of each pair within its place's group.
-        starts = np.r_[0, np.flatnonzero(query[1:] != query[:-1]) + 1]
-        rank = np.arange(len(query)) - np.repeat(starts, np.diff(np.r_[starts, len(query)]))
-        keep = rank < CANDIDATES
-        return query[keep], rows[keep]
+        rows = np.concatenate([np.asarray(f, dtype=np.int64) for f in found])
+        return _nearest_facing(query, rows, self._poses, poses, NEAR_THETA, CANDIDATES)
 
-    def _render(self, rows: np.ndarray, poses: FloatArray) -> tuple[FloatArray, np.ndarray]:
-        """Each stored scan of ``rows`` seen from the place beside it in ``poses``: the
-        expected range of every beam (``inf``: free to the scanner's reach) and whether the
-        scan knows it, ``(M, B)``."""
-        g = self.geometry
-        beams = g.num_beams
-        at = relative(poses, self._poses[rows])  # the stored scanners, seen from the places
-        c, s = np.cos(at[:, 2])[:, None], np.sin(at[:, 2])[:, None]
-        px, py = self._points[rows, :, 0], self._points[rows, :, 1]
-        x = at[:, 0, None] + c * px - s * py
-        y = at[:, 1, None] + s * px + c * py
-        turn = math.copysign(1.0, g.angle_increment)  # a scanner may sweep clockwise
-        offset = (turn * (np.arctan2(y, x) - g.angle_min)) % (2.0 * math.pi)
-        beam = np.rint(offset / abs(g.angle_increment)).astype(np.int64)
-        if g.full_circle:
-            beam %= beams
-        inside = beam < beams
-        cell = beam + (np.arange(len(rows)) * beams)[:, None]  # (scan, beam), flattened
-        hit = inside & self._hits[rows]
-        expected = np.full(len(rows) * beams, np.inf)
-        # (On one flat index ufunc.at takes numpy's fast path: a third of the time.)
-        np.minimum.at(expected, cell[hit], np.hypot(x[hit], y[hit]))
-        expected = expected.reshape(len(rows), beams)
-        known = np.isfinite(expected)
-        free = inside & ~self._hits[rows]
-        known.ravel()[cell[free]] = True
-        return expected, known
+
+@kernel
+def _disagreements(points, hits, stored, rows, query, places, live, angle_min, increment,
+                   full_circle, min_known):  # pragma: no cover - compiled
+    """:meth:`SavedViews.disagreements` for the pairs of a place (``query``, into ``places``)
+    and a stored scan (``rows``, into ``points``, ``hits`` and ``stored``), grouped by place,
+    nearest first. Each stored scan is seen from the place: its beams' end points (or the far
+    end of a beam with no return) put into the bearing they fall in from there, the nearest
+    end point winning; a live beam agrees when it reads within :data:`AGREE` of the view's
+    beam, or of one within :data:`SPREAD` beside it, or neither has a return. (In NumPy, a
+    place's eight stored scans cost some thirty array operations of a few microseconds each:
+    tracking a place watched by its views ran at half the speed in the simulated worlds;
+    docs/benchmarks.md, twenty-seventh session.)"""
+    beams = points.shape[1]
+    out = np.zeros((places.shape[0], 2), dtype=np.int64)
+    best = np.full(places.shape[0], -1.0)
+    expected = np.empty(beams)
+    known = np.empty(beams, dtype=np.bool_)
+    turn = 1.0 if increment >= 0.0 else -1.0  # a scanner may sweep clockwise
+    step = abs(increment)
+    for m in range(rows.shape[0]):
+        r, q = rows[m], query[m]
+        # The stored scanner seen from the place (vmp.types.relative).
+        c0, s0 = math.cos(places[q, 2]), math.sin(places[q, 2])
+        dx, dy = stored[r, 0] - places[q, 0], stored[r, 1] - places[q, 1]
+        ax, ay = c0 * dx + s0 * dy, -s0 * dx + c0 * dy
+        turned = stored[r, 2] - places[q, 2]
+        c, s = math.cos(turned), math.sin(turned)
+        expected[:] = np.inf
+        known[:] = False
+        for j in range(beams):
+            px, py = points[r, j, 0], points[r, j, 1]
+            x = ax + c * px - s * py
+            y = ay + s * px + c * py
+            offset = (turn * (math.atan2(y, x) - angle_min)) % (2.0 * math.pi)
+            beam = int(np.rint(offset / step))
+            if full_circle:
+                beam %= beams
+            if beam >= beams:
+                continue
+            known[beam] = True  # a return, or free to the scanner's reach
+            if hits[r, j]:
+                expected[beam] = min(expected[beam], math.sqrt(x * x + y * y))
+        n_known = 0
+        n_agree = 0
+        for j in range(beams):
+            if not known[j]:
+                continue
+            n_known += 1
+            here = live[q, j]
+            for d in range(-SPREAD, SPREAD + 1):
+                k = j + d
+                if k < 0 or k >= beams:
+                    if not full_circle:
+                        continue  # past the ends of the sweep: nothing known
+                    k %= beams
+                near = expected[k]
+                if abs(near - here) <= AGREE or (math.isinf(near) and math.isinf(here)
+                                                 and known[k]):
+                    n_agree += 1
+                    break
+        if n_known >= min_known * beams:
+            share = n_agree / n_known
+            if share > best[q]:  # the first of equals: the nearest
+                best[q] = share
+                out[q, 0] = n_known - n_agree
+                out[q, 1] = n_known
+    return out
+
+
+@kernel
+def _nearest_facing(query, rows, stored, places, within, most):  # pragma: no cover - compiled
+    """Of the pairs of a place (``query``, into ``places``, grouped) and a stored scan
+    (``rows``, into ``stored``), those whose stored scan faces within ``within`` of the
+    place's heading, the ``most`` nearest per place (equals in the order given), grouped by
+    place, nearest first. (In NumPy, a dozen small array operations: a third of a single
+    place's view.)"""
+    n = rows.shape[0]
+    keep_query = np.empty(n, dtype=np.int64)
+    keep_rows = np.empty(n, dtype=np.int64)
+    kept = 0
+    start = 0
+    while start < n:
+        stop = start
+        while stop < n and query[stop] == query[start]:
+            stop += 1
+        q = query[start]
+        facing = np.empty(stop - start, dtype=np.int64)
+        apart = np.empty(stop - start)
+        m = 0
+        for k in range(start, stop):
+            r = rows[k]
+            turn = abs((stored[r, 2] - places[q, 2] + math.pi) % (2.0 * math.pi) - math.pi)
+            if turn <= within:
+                facing[m] = r
+                apart[m] = math.hypot(stored[r, 0] - places[q, 0], stored[r, 1] - places[q, 1])
+                m += 1
+        order = np.argsort(apart[:m], kind="mergesort")
+        for k in range(min(m, most)):
+            keep_query[kept] = q
+            keep_rows[kept] = facing[order[k]]
+            kept += 1
+        start = stop
+    return keep_query[:kept], keep_rows[:kept]
