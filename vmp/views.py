@@ -121,6 +121,8 @@ def _disagreements(points, hits, stored, rows, query, places, live, angle_min, i
     step = abs(increment)
     for m in range(rows.shape[0]):
         r, q = rows[m], query[m]
+        if best[q] >= 1.0:  # every beam agrees: no later (farther) scan can agree better
+            continue
         # The stored scanner seen from the place (vmp.types.relative).
         c0, s0 = math.cos(places[q, 2]), math.sin(places[q, 2])
         dx, dy = stored[r, 0] - places[q, 0], stored[r, 1] - places[q, 1]
