@@ -486,10 +486,10 @@ class Localizer:
         self.stats["searches while the views doubted"] += 1
         live = search_points(self._points)
         known = [trusted.pose]
-        recent = [v for v in trusted.views if v[1]][-MIN_VIEWS:]
+        recent = _last_views(trusted)
         found = 0
         for pose in self._alike(trusted, live, known):
-            if found + 1 >= MAX_HYPOTHESES:
+            if found >= MAX_HYPOTHESES - 1:  # with the place trusted, as many as are followed
                 break
             pose = self._registered(pose)
             view = self._views([self._ranges], [pose])
@@ -1109,11 +1109,17 @@ def _seen_off(h: Hypothesis) -> bool:
     clearly more than over the scans before it was declared (:func:`_views_apart`)."""
     if not h.declared_views:
         return False
-    now = [v for v in h.views if v[1]][-MIN_VIEWS:]
+    now = _last_views(h)
     if len(now) < MIN_VIEWS:
         return False
     share = sum(w for w, _ in now) / sum(k for _, k in now)
     return share > VIEW_MOST and _views_apart(h.declared_views, now, VIEW_MARGIN)
+
+
+def _last_views(h: Hypothesis) -> list[View]:
+    """The views of ``h``'s last :data:`MIN_VIEWS` scans that had one (fewer when it has
+    fewer)."""
+    return [v for v in h.views if v[1]][-MIN_VIEWS:]
 
 
 def _views_apart(mine: list[View], theirs: list[View], margin: float) -> bool:
