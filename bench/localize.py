@@ -58,8 +58,10 @@ from drivers.simulator import Simulator
 from drivers.splice import carried
 from vmp.evaluate import read_relations, relation_error, relations_between
 from vmp.localization import WRONG_FIX, LocalizationResult, LocalizationRun
-from vmp.localizer import State
+from vmp.localizer import MIN_SCORE, REACH, State
 from vmp.mapfile import MapData, load_map, save_map
+from vmp.places import Places
+from vmp.registration import MIN_POINTS
 from vmp.results import Result
 from vmp.run import MappingRun
 from vmp.source import FrameList, Reference
@@ -206,6 +208,26 @@ def passed(trajectory: FloatArray, half: int) -> np.ndarray:
     return (dist <= PASSED_XY) & (turn <= PASSED_THETA)
 
 
+def explained(first_map: MapData, frames: list, half: int, one_go: FloatArray) -> np.ndarray:
+    """For each scan of the second half: whether the first half's map explains it where it
+    was taken: its points within the localizer's :data:`~vmp.localizer.REACH` score
+    :data:`~vmp.localizer.MIN_SCORE` or more (:meth:`vmp.places.Places.score`) at one go's
+    pose carried into the map's frame at the first-half scan nearest it, as
+    :func:`declared_off` carries a declared place. A wider test than :func:`passed`: a scan
+    of a corridor the first half drove the other way is explained by its map. (The carried
+    pose drifts with the distance to that scan, as the two maps bend apart: a scan taken
+    far from the first half's path may be counted unexplained.)"""
+    places = Places(first_map.map, first_map.milestones, first_map.trajectory)
+    _, nearest = cKDTree(one_go[:half, :2]).query(one_go[half:, :2])
+    out = np.zeros(len(frames) - half, dtype=bool)
+    for s, k in enumerate(nearest):  # one score a scan, as the localizer's, not a hot path
+        pose = compose(compose(first_map.trajectory[k], inverse(one_go[k])), one_go[half + s])
+        points = frames[half + s].points()
+        points = points[np.hypot(points[:, 0], points[:, 1]) <= REACH]
+        out[s] = len(points) >= MIN_POINTS and places.score(points, pose) >= MIN_SCORE
+    return out
+
+
 def speed_rounds(name: str, frames: list, half: int, first_map: MapData,
                  rounds: int) -> list[tuple[float, float]]:
     """``rounds`` more (mapping, tracking) rates in scans per second, in turn: the whole log
@@ -303,6 +325,7 @@ def real(only: str | None, repeat: int = 3, offsets: tuple[int, ...] = (),
             raise SystemExit(f"{name}: the whole-log map placed {full.scans} of "
                              f"{len(frames)} scans; cannot pair its poses with the halves")
         seen = passed(full.trajectory, half)
+        known = explained(first_map, frames, half, full.trajectory)
         # The speeds: this run's pair and repeat - 1 more pairs in turn; medians, and the
         # median of the pairs' ratios.
         pairs = [(full.scans / full.mapping_time,
@@ -332,11 +355,14 @@ def real(only: str | None, repeat: int = 3, offsets: tuple[int, ...] = (),
                "tracking": tracking, "ratio": statistics.median(ratios), "ratios": ratios,
                "cont": e_cont, "merged": e_merged, "passed": float(seen.mean()),
                "starts": starts, "cuts": cuts,
-               "passed_localized": float(loc[seen].mean()) if seen.any() else math.nan}
+               "passed_localized": float(loc[seen].mean()) if seen.any() else math.nan,
+               "explained": float(known.mean()),
+               "explained_localized": float(loc[known].mean()) if known.any() else math.nan}
         print(f"{name}: second half ({res.scans} scans) localized after {first_fix} scans, "
               f"{row['share']:.1%} of scans localized, {row['lost']} lost; where the first "
               f"half passed ({row['passed']:.1%} of the scans) {row['passed_localized']:.1%} "
-              f"localized; relations in the "
+              f"localized; where its map explains the scan ({row['explained']:.1%}) "
+              f"{row['explained_localized']:.1%} localized; relations in the "
               f"second half: localized {e_loc.trans_mean:.4f} m, "
               f"{math.degrees(e_loc.rot_mean):.2f} deg on {e_loc.used} of {len(inside)}; "
               f"whole log mapped {e_same.trans_mean:.4f} m, {math.degrees(e_same.rot_mean):.2f} "
@@ -384,7 +410,7 @@ def table(sim: list[dict], rows: list[dict], runs: int, repeat: int = 3) -> str:
                   "apart: of them, localized | the same on every beam | median "
                   "scans | never | wrong fixes | stale | stuck | ambiguous scans | scans/s: "
                   "localizing, tracking, mapping |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in sim:
             lines.append(f"| {r['name']} | {r['within']} of {r['of']} | "
                          f"{r['told']}: {r['told_within']} | {r['same']} | {r['median']} | "
@@ -399,9 +425,15 @@ def table(sim: list[dict], rows: list[dict], runs: int, repeat: int = 3) -> str:
                   f"{PASSED_XY:g} m of a first-half scan and facing within "
                   f"{math.degrees(PASSED_THETA):.0f} deg of it (poses of the whole log mapped "
                   "in one go), and how many of those were localized: elsewhere the first "
-                  "half's map may not hold what the scan sees.", "",
+                  "half's map may not hold what the scan sees. \"Where its map explains the "
+                  "scan\": the scans whose points score "
+                  f"{MIN_SCORE:g} or more in the first half's map at one go's pose carried "
+                  "into that map's frame at the nearest first-half scan (the localizer's "
+                  "least score to declare a place), and how many of those were localized.",
+                  "",
                   "| log | scans until localized | scans localized | where the first half "
-                  "passed: scans, localized | lost | relations used | "
+                  "passed: scans, localized | where its map explains the scan: scans, "
+                  "localized | lost | relations used | "
                   "localized: trans (m), rot (deg) | whole log mapped, the same relations | "
                   "whole log mapped, all relations of the second half | speed: "
                   "localizing, tracking, mapping (scans/s; tracking and mapping medians of "
@@ -410,7 +442,8 @@ def table(sim: list[dict], rows: list[dict], runs: int, repeat: int = 3) -> str:
         for r in rows:
             a, b, c = r["loc"], r["same"], r["full"]
             lines.append(f"| {r['name']} | {r['first']} | {r['share']:.1%} | "
-                         f"{r['passed']:.1%}, {r['passed_localized']:.1%} | {r['lost']} | "
+                         f"{r['passed']:.1%}, {r['passed_localized']:.1%} | "
+                         f"{r['explained']:.1%}, {r['explained_localized']:.1%} | {r['lost']} | "
                          f"{a.used} of {r['relations']} | {a.trans_mean:.4f}, "
                          f"{math.degrees(a.rot_mean):.2f} | {b.trans_mean:.4f}, "
                          f"{math.degrees(b.rot_mean):.2f} | {c.trans_mean:.4f}, "
