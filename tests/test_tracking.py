@@ -116,43 +116,6 @@ def test_the_lost_place_resumes_against_a_look_alike_but_not_against_a_clearly_b
     assert state is not State.LOCALIZED
 
 
-def _pruned(hypotheses: list[Hypothesis]) -> list[Hypothesis]:
-    loc = Localizer(places=_NoLookAlikes())
-    loc._lost = True
-    loc.hypotheses = hypotheses
-    loc._prune()
-    return loc.hypotheses
-
-
-def test_a_place_followed_where_the_lost_place_stands_takes_its_place_when_it_explains_more():
-    """Two places followed at one pose are one place: the lost place declared before gives
-    way to the one that fits there better, which keeps its claim to resume."""
-    def at(h: Hypothesis, pose: list[float]) -> Hypothesis:
-        h.filter.set_pose(np.array(pose))
-        return h
-
-    lost = at(_hypothesis(0.95, 30, declared=True), [2.0, 1.0, 0.30])
-    lost.scores.append(0.76)  # registered poorly this scan, yet fitted
-    found = at(_hypothesis(0.93, 6), [2.06, 1.0, 0.35])
-    kept = _pruned([lost, found])
-    assert kept == [found] and found.declared
-    # One that explains this scan less well is dropped, as before; so is one that misses.
-    lost = at(_hypothesis(0.95, 30, declared=True), [2.0, 1.0, 0.30])
-    worse = at(_hypothesis(0.70, 6), [2.06, 1.0, 0.35])
-    assert _pruned([lost, worse]) == [lost] and not worse.declared
-    missing = at(_hypothesis(0.99, 6), [2.06, 1.0, 0.35])
-    missing.misses = 1
-    lost = at(_hypothesis(0.5, 30, declared=True), [2.0, 1.0, 0.30])
-    assert _pruned([lost, missing]) == [lost] and not missing.declared
-    # A place elsewhere stays a place of its own; and the place trusted never gives way so.
-    lost = at(_hypothesis(0.5, 30, declared=True), [2.0, 1.0, 0.30])
-    apart = at(_hypothesis(0.93, 6), [2.5, 1.0, 0.30])
-    assert _pruned([lost, apart]) == [lost, apart] and not apart.declared
-    trusted = at(_hypothesis(0.5, 30, declared=True), [2.0, 1.0, 0.30])
-    trusted.trusted = True
-    assert _pruned([trusted, at(_hypothesis(0.93, 6), [2.06, 1.0, 0.35])]) == [trusted]
-
-
 def test_a_trusted_place_is_registered_once_the_robot_moved_a_decimetre_and_scored_every_scan(
         monkeypatch):
     calls: list[int] = []

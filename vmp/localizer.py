@@ -652,12 +652,10 @@ class Localizer:
         return math.hypot(d[0], d[1]) > RETRY_XY or abs(d[2]) > RETRY_THETA
 
     def _prune(self) -> None:
-        """Drop hypotheses that stopped fitting and ones that met a better one (of two at one
-        place, the one ranked first; but the place declared before the robot was lost gives
-        way to one that fits there: :func:`_found_again`); keep the best few. While a place
-        is trusted, the others proposed in doubt of it are followed for :data:`WINDOW` scans
-        to outdo it (:meth:`_outdone`), and dropped if they do not: each costs a
-        registration a scan."""
+        """Drop hypotheses that stopped fitting and ones that met a better one; keep the
+        best few. While a place is trusted, the others proposed in doubt of it are followed
+        for :data:`WINDOW` scans to outdo it (:meth:`_outdone`), and dropped if they do not:
+        each costs a registration a scan."""
         trusted = self._trusted()
         keep: list[Hypothesis] = []
         top = max((h.score for h in self.hypotheses), default=0.0)
@@ -677,13 +675,9 @@ class Localizer:
                 continue
             if trusted is not None and h is not trusted and len(h.scores) == WINDOW:
                 continue
-            same = next((k for k in keep if _same(k.pose, h.pose)), None)
-            if same is None:
-                keep.append(h)
-            elif _found_again(same, h):
-                h.declared = True
-                keep[keep.index(same)] = h
-                self.stats["lost places found again by a place followed"] += 1
+            if any(_same(k.pose, h.pose) for k in keep):
+                continue
+            keep.append(h)
         self.hypotheses = keep[:MAX_HYPOTHESES]
 
     def _trusted(self) -> Hypothesis | None:
@@ -1043,20 +1037,6 @@ def _rival(h: Hypothesis, best: Hypothesis) -> bool:
     if h.known_fits < MIN_FITS:
         return h.score >= best.score
     return _as_well(*_over_common_scans(h, best))
-
-
-def _found_again(lost: Hypothesis, h: Hypothesis) -> bool:
-    """Whether ``h``, followed at the same place as ``lost`` (:func:`_same`), takes its
-    place: ``lost`` was declared before the robot was lost, and ``h`` fits this scan and
-    explains it better. The two are one place, and the one that fits keeps following it.
-    (Ranked first as the place declared, the lost one was kept and the other dropped: in
-    ACES's second half the place lost in a turn on the spot registered 0.763 of a scan
-    where one found beside it, within :data:`SAME_XY` and :data:`SAME_THETA`, registered
-    0.927; kept, it missed every scan from the next while the robot stood still, and the
-    robot was not localized for 296 scans where the map explains them at about 0.95;
-    docs/benchmarks.md, twenty-eighth session.)"""
-    return bool(lost.declared and not lost.trusted and not h.misses and h.scores
-                and lost.scores and h.scores[-1] > lost.scores[-1])
 
 
 def _left_behind(h: Hypothesis, best: Hypothesis) -> bool:
