@@ -410,7 +410,7 @@ def table(sim: list[dict], rows: list[dict], runs: int, repeat: int = 3) -> str:
                   "apart: of them, localized | the same on every beam | median "
                   "scans | never | wrong fixes | stale | stuck | ambiguous scans | scans/s: "
                   "localizing, tracking, mapping |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in sim:
             lines.append(f"| {r['name']} | {r['within']} of {r['of']} | "
                          f"{r['told']}: {r['told_within']} | {r['same']} | {r['median']} | "
@@ -438,7 +438,7 @@ def table(sim: list[dict], rows: list[dict], runs: int, repeat: int = 3) -> str:
                   "whole log mapped, all relations of the second half | speed: "
                   "localizing, tracking, mapping (scans/s; tracking and mapping medians of "
                   f"{repeat} runs in turn) | tracking / mapping (median; each run's) |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
             a, b, c = r["loc"], r["same"], r["full"]
             lines.append(f"| {r['name']} | {r['first']} | {r['share']:.1%} | "
