@@ -212,8 +212,8 @@ def explained(first_map: MapData, frames: list, half: int, one_go: FloatArray) -
     """For each scan of the second half: whether the first half's map explains it where it
     was taken: its points within the localizer's :data:`~vmp.localizer.REACH` score
     :data:`~vmp.localizer.MIN_SCORE` or more (:meth:`vmp.places.Places.score`) at one go's
-    pose carried into the map's frame at the first-half scan nearest it, as
-    :func:`declared_off` carries a declared place. A wider test than :func:`passed`: a scan
+    pose carried into the map's frame at the first-half scan nearest it (the carrying of
+    :func:`declared_off`, the other way round). A wider test than :func:`passed`: a scan
     of a corridor the first half drove the other way is explained by its map. (The carried
     pose drifts with the distance to that scan, as the two maps bend apart: a scan taken
     far from the first half's path may be counted unexplained.)"""
