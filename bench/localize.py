@@ -208,12 +208,19 @@ def passed(trajectory: FloatArray, half: int) -> np.ndarray:
     return (dist <= PASSED_XY) & (turn <= PASSED_THETA)
 
 
+def carried_at(pose: FloatArray, there: FloatArray, here: FloatArray) -> FloatArray:
+    """``pose`` carried from one map's frame into another's at one scan, ``here`` its pose
+    in the first and ``there`` in the second: two maps of one log bend apart over a
+    building, but not at one place."""
+    return compose(compose(there, inverse(here)), pose)
+
+
 def explained(first_map: MapData, frames: list, half: int, one_go: FloatArray) -> np.ndarray:
     """For each scan of the second half: whether the first half's map explains it where it
     was taken: its points within the localizer's :data:`~vmp.localizer.REACH` score
     :data:`~vmp.localizer.MIN_SCORE` or more (:meth:`vmp.places.Places.score`) at one go's
-    pose carried into the map's frame at the first-half scan nearest it (the carrying of
-    :func:`declared_off`, the other way round). A wider test than :func:`passed`: a scan
+    pose carried into the map's frame at the first-half scan nearest it
+    (:func:`carried_at`). A wider test than :func:`passed`: a scan
     of a corridor the first half drove the other way is explained by its map. (The carried
     pose drifts with the distance to that scan, as the two maps bend apart: a scan taken
     far from the first half's path may be counted unexplained.)"""
@@ -221,7 +228,7 @@ def explained(first_map: MapData, frames: list, half: int, one_go: FloatArray) -
     _, nearest = cKDTree(one_go[:half, :2]).query(one_go[half:, :2])
     out = np.zeros(len(frames) - half, dtype=bool)
     for s, k in enumerate(nearest):  # one score a scan, as the localizer's, not a hot path
-        pose = compose(compose(first_map.trajectory[k], inverse(one_go[k])), one_go[half + s])
+        pose = carried_at(one_go[half + s], first_map.trajectory[k], one_go[k])
         points = frames[half + s].points()
         points = points[np.hypot(points[:, 0], points[:, 1]) <= REACH]
         out[s] = len(points) >= MIN_POINTS and places.score(points, pose) >= MIN_SCORE
@@ -273,7 +280,7 @@ def declared_off(res: LocalizationResult, cut_map: FloatArray, one_go: FloatArra
     for s in res.declarations:
         pose = res.poses[s]
         k = int(np.argmin(np.hypot(*(cut_map[:, :2] - pose[:2]).T)))
-        e = relative(one_go[cut + s], compose(compose(one_go[k], inverse(cut_map[k])), pose))
+        e = relative(one_go[cut + s], carried_at(pose, one_go[k], cut_map[k]))
         off += bool(math.hypot(e[0], e[1]) > WRONG_FIX)
     return off
 
