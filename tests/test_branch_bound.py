@@ -292,7 +292,36 @@ def test_the_compiled_search_is_the_numpy_search():
             assert (got is None) == (want is None), trial
             if got is not None:
                 np.testing.assert_array_equal(got.pose, want.pose)
-                assert got.score == want.score and got.evaluated == want.evaluated
+                assert got.score == want.score
+
+
+def test_rotations_bounded_in_groups_keep_every_answer():
+    # The localizer's search along a saved path: a window of 0.6 m and 10 degrees about each
+    # of many centres, a floor near the right place's score. Rotations bounded in groups
+    # (and the search started at the level that covers the window) must find what the
+    # search of every rotation did, centre by centre, where it finds a pose and where not.
+    world = _room()
+    rng = np.random.default_rng(13)
+    grid = SearchGrid(world, 0.1, 0.1, depth=5, max_window=4.0)
+    truth = np.array([5.5, 3.0, 0.7])
+    pts = _seen_from(world, truth, keep=100) + rng.normal(0, 0.02, (100, 2))
+    floor = grid.score(pts, truth) - 0.02
+    centers = np.column_stack([rng.uniform(1, 11, 300), rng.uniform(1, 7, 300),
+                               rng.uniform(-3, 3, 300)])
+    centers[150] = truth + [0.3, -0.2, 0.05]
+    found_some = 0
+    for center in centers:
+        got = search(grid, pts, center, 0.6, math.radians(10), floor)
+        want = _search_in_numpy(grid, pts, center, 0.6, math.radians(10), floor)
+        assert (got is None) == (want is None)
+        if got is not None:
+            np.testing.assert_array_equal(got.pose, want.pose)
+            assert got.score == want.score
+            found_some += 1
+    assert 0 < found_some < len(centers)
+    found = first_match(grid, pts, centers, 0.6, math.radians(10), floor)
+    assert found is not None and found[0] <= 150
+    assert found[1].score >= floor
 
 
 def test_the_compiled_score_is_the_mean_over_the_clamped_cells():

@@ -259,10 +259,12 @@ def first_match(grid: SearchGrid, points: FloatArray, centers: FloatArray, windo
     steps = min(math.ceil(window_xy / res - 1e-9), grid.max_steps)
     ex_pose, ex_xy, ex_theta = (np.zeros(3), -1.0, -1.0) if exclude is None else exclude
     ex_pose = np.ascontiguousarray(np.reshape(ex_pose, (-1, 3)), dtype=np.float64)
+    reach = float(np.hypot(pts[:, 0], pts[:, 1]).max()) / res if len(pts) else 0.0
     k, score, r, x, y, evaluated = _first_found(
         grid.stack.reshape(depth + 1, -1), np.ascontiguousarray(pts), centers, turns,
         float(grid.origin[0]), float(grid.origin[1]), res, *grid.bounds, grid.shape[1],
-        255.0 * len(pts), steps, depth, min_score, ex_pose, float(ex_xy), float(ex_theta))
+        255.0 * len(pts), steps, depth, min_score, ex_pose, float(ex_xy), float(ex_theta),
+        reach)
     if k < 0:
         return None
     center = centers[k]
@@ -274,12 +276,13 @@ def first_match(grid: SearchGrid, points: FloatArray, centers: FloatArray, windo
 
 @kernel
 def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, stride, scale,
-                 steps, depth, min_score, ex_pose, ex_xy, ex_theta
+                 steps, depth, min_score, ex_pose, ex_xy, ex_theta, reach
                  ):  # pragma: no cover - compiled
     """The search about each of ``centers`` in turn until one finds a pose: (its index,
     score, rotation, x and y offset in cells, candidates scored in all), index -1 when none
     does. ``levels`` (depth + 1, cells) are the grid's levels flattened, ``turns`` the
-    rotations searched about a centre's heading."""
+    rotations searched about a centre's heading, ``reach`` the farthest point's range in
+    cells."""
     evaluated = 0
     cos = np.empty(turns.shape[0])
     sin = np.empty(turns.shape[0])
@@ -293,7 +296,7 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
                            hi_x, hi_y, stride)
         score, r, x, y, n = _branch_and_bound(levels, flat, scale, steps, depth, min_score,
                                               stride, centers[k], thetas, res, ex_pose,
-                                              ex_xy, ex_theta)
+                                              ex_xy, ex_theta, lo, reach)
         evaluated += n
         if r >= 0:
             return k, score, r, x, y, evaluated
@@ -340,17 +343,30 @@ def _scores(levels, level, flat, rot, ox, oy, n, scale, stride, center, thetas, 
 
 @kernel
 def _branch_and_bound(levels, flat, scale, steps, depth, min_score, stride, center, thetas,
-                      res, ex_pose, ex_xy, ex_theta):  # pragma: no cover - compiled
+                      res, ex_pose, ex_xy, ex_theta, lo, reach):  # pragma: no cover - compiled
     """The search level by level: (score, rotation, x and y offset in cells, candidates
     scored), rotation -1 when nothing scores ``min_score``. ``levels`` (depth + 1, cells) are
     the grid's levels flattened, ``flat`` (rotations, points) the points' cells at the
-    window's centre. Every level keeps the candidates that may still beat the best exact
-    score, dives greedily from the best of them to set that score, and scores their
-    children (the first of equal scores wins throughout)."""
-    top = 1 << depth
+    window's centre, clamped no lower than ``lo``, ``reach`` the farthest point's range in
+    cells. The coarsest level searched is the first whose blocks cover the window (the
+    levels above it bound nothing tighter); where the top level's blocks are wider than
+    that, rotations are first bounded in groups (:func:`_groups_alive`). Every level keeps the
+    candidates that may still beat the best exact score, dives greedily from the best of
+    them to set that score, and scores their children (the first of equal scores wins
+    throughout)."""
+    top_level = 0
+    while top_level < depth and (1 << top_level) < 2 * steps + 1:
+        top_level += 1
+    top = 1 << top_level
     corners = np.arange(-steps, steps + 1, top)
     nc = corners.shape[0]
-    n = thetas.shape[0] * nc * nc
+    alive, group, evaluated = _groups_alive(levels, flat, scale, steps, depth, min_score,
+                                            stride, thetas, lo, reach, corners, top)
+    n = 0
+    for r in range(thetas.shape[0]):
+        for a in range(nc):
+            for b in range(nc):
+                n += alive[group[r], a, b]
     rot = np.empty(n, dtype=np.int64)
     ox = np.empty(n, dtype=np.int64)
     oy = np.empty(n, dtype=np.int64)
@@ -358,13 +374,14 @@ def _branch_and_bound(levels, flat, scale, steps, depth, min_score, stride, cent
     for r in range(thetas.shape[0]):
         for a in range(nc):
             for b in range(nc):
-                rot[k], ox[k], oy[k] = r, corners[a], corners[b]
-                k += 1
-    values = _scores(levels, depth, flat, rot, ox, oy, n, scale, stride, center, thetas, res,
-                     ex_pose, ex_xy, ex_theta)
-    evaluated = n
+                if alive[group[r], a, b]:
+                    rot[k], ox[k], oy[k] = r, corners[a], corners[b]
+                    k += 1
+    values = _scores(levels, top_level, flat, rot, ox, oy, n, scale, stride, center, thetas,
+                     res, ex_pose, ex_xy, ex_theta)
+    evaluated += n
     best, br, bx, by = min_score, -1, 0, 0
-    for level in range(depth, 0, -1):
+    for level in range(top_level, 0, -1):
         m = 0
         for k in range(n):  # the candidates whose bound may still beat the best
             if values[k] >= best:
@@ -395,6 +412,55 @@ def _branch_and_bound(levels, flat, scale, steps, depth, min_score, stride, cent
             if values[i] >= best:
                 best, br, bx, by = values[i], rot[i], ox[i], oy[i]
     return best, br, bx, by, evaluated
+
+
+@kernel
+def _groups_alive(levels, flat, scale, steps, depth, min_score, stride, thetas, lo, reach,
+                  corners, top):  # pragma: no cover - compiled
+    """Which groups of neighbouring rotations may score ``min_score`` at each corner's block
+    of ``top`` cells: (alive[group, a, b], each rotation's group, bounds scored). A group's
+    rotations place each point within ``h`` cells of where the middle one does (``reach``
+    times the turn between them, plus one for the rounding), so the top level's block of
+    ``2^depth`` cells set ``h`` cells back bounds every pose of the group in a corner's block
+    where that block and ``2 h`` fit in it; one rotation to a group where nothing does. (In
+    the localizer's search along the saved path, a window of 13 cells a side under blocks
+    of 32, the 43 rotations fall into 3 groups, and most of the path's hundreds of windows
+    end there.)"""
+    n_rot = thetas.shape[0]
+    nc = corners.shape[0]
+    span = min(top, 2 * steps + 1)  # cells of the window under one corner's block, at most
+    room = min(((1 << depth) - span) // 2, lo - steps)  # the widest h that fits
+    half = 0  # rotations each side of a group's middle
+    turn = 0.0
+    if n_rot > 1 and room >= 1:
+        turn = abs(thetas[1] - thetas[0])
+        while half + 1 < n_rot and math.floor(reach * (half + 1) * turn) + 1 <= room:
+            half += 1
+    size = 2 * half + 1
+    n_groups = (n_rot + size - 1) // size
+    group = np.empty(n_rot, dtype=np.int64)
+    for r in range(n_rot):
+        group[r] = r // size
+    alive = np.ones((n_groups, nc, nc), dtype=np.int64)
+    if half == 0:
+        return alive, group, 0
+    level = levels[depth]
+    evaluated = 0
+    for g in range(n_groups):
+        first = g * size
+        middle = min(first + half, n_rot - 1)
+        h = math.floor(reach * half * turn) + 1
+        row = flat[middle]
+        for a in range(nc):
+            for b in range(nc):
+                off = (corners[a] - h) * stride + corners[b] - h
+                total = 0
+                for i in range(row.shape[0]):
+                    total += level[row[i] + off]
+                evaluated += 1
+                if total / scale < min_score:
+                    alive[g, a, b] = 0
+    return alive, group, evaluated
 
 
 @kernel
