@@ -12,11 +12,13 @@ from conftest import mapped, run_cli
 
 from drivers import open_source
 from drivers.splice import carried
+from vmp import localizer
+from vmp.branch_bound import search_points
 from vmp.errors import InputError
 from vmp.localization import LocalizationRun, open_saved_map
 from vmp.localizer import LOST_AFTER, State
 from vmp.mapfile import MapData
-from vmp.places import PATH_STEP, samples_along
+from vmp.places import PATH_STEP, Places, samples_along
 from vmp.source import FrameList, Reference
 from vmp.tum import read_tum
 from vmp.types import relative
@@ -418,3 +420,54 @@ def test_after_a_place_its_views_doubted_gave_way_the_scans_before_are_not_compa
     # scans before it was followed, carried back across the kidnap, left it and the bays
     # alike found later undecided (the scans before tell neither apart) until 35 scans.
     _found_again("warehouse", 134, 1793, 2223)
+
+
+def test_the_whole_map_search_finds_a_scan_anywhere_facing_any_way():
+    """:meth:`Places.everywhere`: another run's scans, wherever they were taken in the saved
+    map and however the robot faced, are found where they were taken; with that pose left
+    out, the best elsewhere explains them clearly less well."""
+    saved = _saved("lab")
+    places = Places(saved.map, saved.milestones, saved.trajectory)
+    frames, truth = _run("lab", 8)
+    headings = []
+    for k in (150, 520, 830):
+        live = search_points(frames[k].points())
+        best = places.everywhere(live, 0.5)
+        assert best is not None
+        off = relative(truth[k], best.pose)
+        assert np.hypot(off[0], off[1]) < 0.2 and abs(off[2]) < np.radians(3.0)
+        other = places.everywhere(live, 0.0, (best.pose.reshape(1, 3), 1.0, np.radians(20.0)))
+        assert other is not None and other.score < best.score - 0.05
+        headings.append(truth[k, 2])
+    assert np.ptp(np.cos(headings)) > 1.0  # the robot faced different ways
+
+
+def test_where_the_signatures_propose_nothing_the_whole_map_search_localizes(monkeypatch):
+    """Signatures propose only places with a milestone near. With them proposing nothing,
+    the search of the whole map still localizes the robot, at the right place; without it,
+    it never is (the premise)."""
+    frames, truth = _run("lab", 5)
+    a, n = 400, 120
+    monkeypatch.setattr(localizer, "propose", lambda *args, **kwargs: ([], []))
+    res = _localize("lab", frames[a:a + n], truth[a:a + n])
+    first = _first_right(res, 0, n)
+    assert first is not None and first <= WITHIN + localizer.ANYWHERE_EVERY
+    assert (res.errors()[res.localized] <= 0.5).all()
+    assert res.stats["places found in the whole map"] >= 1
+    monkeypatch.setattr(Places, "everywhere", lambda *args, **kwargs: None)
+    assert not _localize("lab", frames[a:a + n], truth[a:a + n]).localized.any()
+
+
+def test_the_whole_map_is_searched_again_only_from_elsewhere(monkeypatch):
+    """A robot standing still sees what it saw: the whole map, searched once from here, is
+    not searched again until it has moved (it costs a hundred times the signatures' search)."""
+    frames, truth = _run("lab", 5)
+    calls = []
+    monkeypatch.setattr(localizer, "propose", lambda *args, **kwargs: ([], []))
+    monkeypatch.setattr(Places, "everywhere", lambda *args, **kwargs: calls.append(1))
+    still = [replace(frames[400], stamp=frames[400].stamp + 0.1 * k) for k in range(60)]
+    _localize("lab", still, np.repeat(truth[400:401], 60, axis=0))
+    assert len(calls) == 1
+    calls.clear()
+    _localize("lab", frames[400:460], truth[400:460])
+    assert len(calls) >= 2

@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from milestones.manager import MilestoneManager
-from vmp.branch_bound import SearchGrid
+from vmp.branch_bound import Match, SearchGrid, search
 from vmp.config import RegistrationConfig
 from vmp.registration import Reference, Registration, explained, fits, last_gate, likelihood
 from vmp.submaps import voxel_thin
@@ -137,6 +137,32 @@ class Places:
         """Whether a registration of ``points`` against the map (:attr:`reference`) fits
         (:func:`fits_map`)."""
         return fits_map(self.reference, reg, points, config)
+
+    def everywhere(self, points: FloatArray, min_score: float,
+                   exclude: tuple[FloatArray, float, float] | None = None) -> Match | None:
+        """The best pose of ``points`` (their frame, as :func:`vmp.branch_bound.search`
+        takes them) anywhere in the map, facing any way, scoring ``min_score`` or more in
+        its search grid; None when there is none. ``exclude`` leaves out poses as the
+        search does. The map's box is searched in windows of :data:`MAX_WINDOW` either way,
+        each pruned below the best found so far (about 0.15 s for ACES's first half, 80 m
+        by 60; docs/benchmarks.md, twenty-ninth session)."""
+        if len(points) == 0 or len(self.points) == 0:
+            return None
+        grid = self.grid
+        best = None
+        for center in self._tiles():
+            found = search(grid, points, center, MAX_WINDOW, math.pi, min_score, exclude)
+            if found is not None and (best is None or found.score > best.score):
+                best, min_score = found, found.score
+        return best
+
+    def _tiles(self) -> FloatArray:
+        """The centres of the windows :meth:`everywhere` searches: :data:`MAX_WINDOW` either
+        way of each covers the map's box."""
+        lo, hi = self.points.min(axis=0), self.points.max(axis=0)
+        xs = np.arange(lo[0] + MAX_WINDOW, hi[0] + MAX_WINDOW, 2 * MAX_WINDOW)
+        ys = np.arange(lo[1] + MAX_WINDOW, hi[1] + MAX_WINDOW, 2 * MAX_WINDOW)
+        return np.array([(x, y, 0.0) for x in xs for y in ys])
 
     def nearest(self, pose: FloatArray) -> Place | None:
         """The submap of the milestone nearest ``pose`` (a turn counts as
