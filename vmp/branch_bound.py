@@ -446,12 +446,10 @@ def _groups_alive(levels, flat, scale, steps, depth, min_score, stride, thetas, 
     if half == 0:
         return alive, group, 0
     level = levels[depth]
+    h = _shift(reach * half * turn)  # no group's rotation is farther from its middle
     evaluated = 0
     for g in range(n_groups):
-        first = g * size
-        middle = min(first + half, n_rot - 1)
-        h = _shift(reach * half * turn)
-        row = flat[middle]
+        row = flat[min(g * size + half, n_rot - 1)]  # the group's middle rotation
         for a in range(nc):
             for b in range(nc):
                 off = (corners[a] - h) * stride + corners[b] - h
