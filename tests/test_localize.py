@@ -13,7 +13,7 @@ from conftest import mapped, run_cli
 from drivers import open_source
 from drivers.splice import carried
 from vmp import localizer
-from vmp.branch_bound import search_points
+from vmp.branch_bound import Match, search_points
 from vmp.errors import InputError
 from vmp.localization import LocalizationRun, open_saved_map
 from vmp.localizer import LOST_AFTER, State
@@ -471,3 +471,86 @@ def test_the_whole_map_is_searched_again_only_from_elsewhere(monkeypatch):
     calls.clear()
     _localize("lab", frames[400:460], truth[400:460])
     assert len(calls) >= 2
+
+
+def _lab_localizer() -> tuple[localizer.Localizer, np.ndarray]:
+    """A localizer in the lab's saved map that has seen one scan of another run, and that
+    scan's true pose."""
+    saved = _saved("lab")
+    places = Places(saved.map, saved.milestones, saved.trajectory)
+    loc = localizer.Localizer(places)
+    frames, truth = _run("lab", 5)
+    loc._points = frames[400].points()
+    loc._within = loc._points[np.hypot(*loc._points.T) <= localizer.REACH]
+    loc._ranges = frames[400].ranges
+    loc._recent.append((loc._within, np.zeros(3), loc._ranges))
+    return loc, truth[400].copy()
+
+
+def _followed(loc: localizer.Localizer, pose: np.ndarray, scores: list[float],
+              trusted: bool = False) -> localizer.Hypothesis:
+    h = loc._start(np.asarray(pose, dtype=float), np.diag([0.01, 0.01, 0.001]))
+    for s in scores:
+        h.record(s, localizer.NO_VIEW)
+    h.fits = h.streak = len(scores)
+    h.searches = localizer.MIN_SEARCHES
+    h.trusted = h.declared = trusted
+    loc.hypotheses.append(h)
+    return h
+
+
+@pytest.mark.parametrize(("offset", "localized"), [((0.6, 0.0, 0.0), True),
+                                                   ((0.0, 0.0, np.radians(12.0)), True),
+                                                   ((4.0, 0.0, 0.0), False)])
+def test_a_doubted_place_outdone_by_itself_better_placed_stays_localized(offset, localized):
+    """A place trusted whose filter drifted off it (scoring 0.7) and a pose within
+    ANYWHERE_APART of it that explains the scans clearly better (1.0): the same place better
+    placed, taken over without losing the robot. One farther off is another place: the
+    robot is lost until it wins."""
+    loc, pose = _lab_localizer()
+    trusted = _followed(loc, pose, [0.7] * localizer.WINDOW, trusted=True)
+    better = _followed(loc, pose + np.asarray(offset), [1.0] * localizer.WINDOW)
+    state = loc._decide()
+    if localized:
+        assert state is State.LOCALIZED and loc.hypotheses == [better] and better.trusted
+        assert loc.stats["times a doubted place was placed better"] == 1
+    else:
+        assert state is not State.LOCALIZED and not trusted.trusted
+        assert loc.stats["times a doubted place gave way"] == 1
+
+
+def test_the_search_near_a_place_for_look_alikes_stops_after_a_few(monkeypatch):
+    """Where every pose around a place explains the scan about as well (an open hall), the
+    search near it for look-alikes, each leaving out the ones before, would run on: it stops
+    after MAX_ALIKE (128 such searches took one scan of ACES 6.2 s), and the search along the
+    saved path still follows."""
+    loc, pose = _lab_localizer()
+    h = _followed(loc, pose, [1.0] * localizer.WINDOW, trusted=True)
+    near = []
+
+    def plateau(self, h, least, live, known=None):
+        near.append(1)
+        return pose + [0.6 * len(near), 0.0, 0.0], 1.0, 1.0
+
+    far = [pose + [20.0, 0.0, 0.0]]
+    monkeypatch.setattr(localizer.Localizer, "_near", plateau)
+    monkeypatch.setattr(localizer.Localizer, "_all_along_path",
+                        lambda self, *args: iter([Match(p, 1.0, 0) for p in far]))
+    found = list(loc._alike(h, np.zeros((50, 2)), [h.pose]))
+    assert len(near) == localizer.MAX_ALIKE
+    assert len(found) == localizer.MAX_ALIKE + 1 and np.allclose(found[-1], far[0])
+
+
+def test_the_whole_map_is_not_searched_while_a_place_followed_explains_the_scan(monkeypatch):
+    """Only a pose clearly better than every place followed is followed from the whole map's
+    search: with one at the right place explaining the scan fully, nothing could be, and the
+    search (about 0.15 s on ACES's map) is not run."""
+    loc, pose = _lab_localizer()
+    calls = []
+    monkeypatch.setattr(Places, "everywhere", lambda *args, **kwargs: calls.append(1))
+    loc._anywhere()
+    assert len(calls) == 1  # nothing followed: searched
+    calls.clear()
+    _followed(loc, pose, [1.0] * localizer.WINDOW)
+    loc._anywhere()
+    assert calls == []

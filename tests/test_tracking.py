@@ -158,6 +158,7 @@ def test_a_trusted_place_gives_way_only_when_doubted_and_another_explains_clearl
     # clearly better.
     old = _trusted(0.93, declared_at=0.99)
     right = _hypothesis(0.995, MIN_FITS)
+    right.filter.set_pose(np.array([3.0, 0.0, 0.0]))  # a bay 3 m along
     loc = Localizer(places=_NoLookAlikes())
     assert loc._doubted(old)
     loc.hypotheses = [old, right]
