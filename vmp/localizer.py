@@ -899,17 +899,17 @@ class Localizer:
         trusted = self._trusted()
         if trusted is not None and trusted.misses < LOST_AFTER:
             found = self._outseen(trusted)
-            better = None if found is not None else self._outdone(trusted)
             if found is not None:
                 self.stats["times a place the views doubted gave way"] += 1
                 self._carried_before(found, trusted)
-            elif better is None:
-                return State.LOCALIZED
-            elif _nearby(better.pose, trusted.pose):
-                # The same place, better placed (the filter had drifted off it): the robot
-                # is not lost.
-                return self._declare(better, "times a doubted place was placed better")
             else:
+                better = self._outdone(trusted)
+                if better is None:
+                    return State.LOCALIZED
+                if _nearby(better.pose, trusted.pose):
+                    # The same place, better placed (the filter had drifted off it): the
+                    # robot is not lost.
+                    return self._declare(better, "times a doubted place was placed better")
                 self.stats["times a doubted place gave way"] += 1
             # As after a miss: to resume, it must fit again scan after scan, and be compared
             # over those scans (over a longer window its scores from before the robot was
