@@ -707,8 +707,7 @@ class Localizer:
     def _moved_since(self, at: FloatArray) -> bool:
         """Whether the robot moved more than :data:`RETRY_XY` or turned more than
         :data:`RETRY_THETA` by odometry since it was ``at`` (enough for a new view)."""
-        d = relative(at, self._odometry)
-        return math.hypot(d[0], d[1]) > RETRY_XY or abs(d[2]) > RETRY_THETA
+        return not _within(at, self._odometry, RETRY_XY, RETRY_THETA)
 
     def _prune(self) -> None:
         """Drop hypotheses that stopped fitting and ones that met a better one; keep the
@@ -1266,13 +1265,18 @@ def _same_view(before: FloatArray, now: FloatArray) -> bool:
     return 2 * int(np.count_nonzero(same)) > len(same)
 
 
+def _within(a: FloatArray, b: FloatArray, xy: float, theta: float) -> bool:
+    """Whether pose ``b`` lies within ``xy`` (m) of pose ``a`` and turned at most ``theta``
+    (rad) from it."""
+    d = relative(a, b)
+    return math.hypot(d[0], d[1]) <= xy and abs(d[2]) <= theta
+
+
 def _nearby(a: FloatArray, b: FloatArray) -> bool:
     """Whether two poses lie within :data:`ANYWHERE_APART` of each other: one peak of the
     scan's score in the map, not two places."""
-    d = relative(a, b)
-    return math.hypot(d[0], d[1]) <= ANYWHERE_APART[0] and abs(d[2]) <= ANYWHERE_APART[1]
+    return _within(a, b, *ANYWHERE_APART)
 
 
 def _same(a: FloatArray, b: FloatArray) -> bool:
-    d = relative(a, b)
-    return math.hypot(d[0], d[1]) <= SAME_XY and abs(d[2]) <= SAME_THETA
+    return _within(a, b, SAME_XY, SAME_THETA)

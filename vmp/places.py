@@ -160,9 +160,10 @@ class Places:
         """The centres of the windows :meth:`everywhere` searches: :data:`MAX_WINDOW` either
         way of each covers the map's box."""
         lo, hi = self.points.min(axis=0), self.points.max(axis=0)
-        xs = np.arange(lo[0] + MAX_WINDOW, hi[0] + MAX_WINDOW, 2 * MAX_WINDOW)
-        ys = np.arange(lo[1] + MAX_WINDOW, hi[1] + MAX_WINDOW, 2 * MAX_WINDOW)
-        return np.array([(x, y, 0.0) for x in xs for y in ys])
+        xs, ys = np.meshgrid(np.arange(lo[0] + MAX_WINDOW, hi[0] + MAX_WINDOW, 2 * MAX_WINDOW),
+                             np.arange(lo[1] + MAX_WINDOW, hi[1] + MAX_WINDOW, 2 * MAX_WINDOW),
+                             indexing="ij")
+        return np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
 
     def nearest(self, pose: FloatArray) -> Place | None:
         """The submap of the milestone nearest ``pose`` (a turn counts as
