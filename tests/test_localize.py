@@ -519,6 +519,32 @@ def test_a_doubted_place_outdone_by_itself_better_placed_stays_localized(offset,
         assert loc.stats["times a doubted place gave way"] == 1
 
 
+@pytest.mark.parametrize(("offset", "past", "gives_way"), [
+    ((10.0, 0.0, np.pi), [1.0] * (localizer.WINDOW - 1), False),
+    ((10.0, 0.0, np.pi), [0.0] + [1.0] * (localizer.WINDOW - 2), True),
+    ((4.0, 0.0, np.radians(10.0)), [1.0] * (localizer.WINDOW - 1), True)])
+def test_a_place_trusted_gives_way_only_to_one_the_robot_may_have_come_to(offset, past,
+                                                                          gives_way):
+    """A place trusted, doubted (scoring 0.9), and another 10 m off facing the other way
+    that explains the scans clearly better (1.0). Where that place explains the scans before
+    it was followed all the way back, as the place trusted did, it is a look-alike along the
+    path the robot drove (a symmetric building's mirror where the map is fuller): the robot
+    stays localized. Where the scans before stop fitting it (the robot was carried there), or
+    it lies near the place trusted (its filter slid along a corridor, or turned a little),
+    the place trusted gives way."""
+    loc, pose = _lab_localizer()
+    trusted = _followed(loc, pose, [0.9] * localizer.WINDOW, trusted=True)
+    other = _followed(loc, pose + np.asarray(offset), [1.0] * localizer.WINDOW)
+    other.past = list(past)
+    state = loc._decide()
+    if gives_way:
+        assert state is not State.LOCALIZED and not trusted.trusted
+        assert loc.stats["times a doubted place gave way"] == 1
+    else:
+        assert state is State.LOCALIZED and trusted.trusted
+        assert loc.stats["times a doubted place gave way"] == 0
+
+
 def test_the_search_near_a_place_for_look_alikes_stops_after_a_few(monkeypatch):
     """Where every pose around a place explains the scan about as well (an open hall), the
     search near it for look-alikes, each leaving out the ones before, would run on: it stops
