@@ -580,3 +580,56 @@ def test_the_whole_map_is_not_searched_while_a_place_followed_explains_the_scan(
     _followed(loc, pose, [1.0] * localizer.WINDOW)
     loc._anywhere()
     assert calls == []
+
+
+def test_once_lost_the_robot_is_looked_for_where_odometry_carried_it(monkeypatch):
+    """A robot localized, then blind for longer than the place lost is kept (its scanner saw
+    nothing), is found again where scan odometry carried it, with the signatures and the
+    whole map's search finding nothing from the loss on; without that search it never is
+    (the premise)."""
+    frames, truth = _run("lab", 5)
+    a, n, dark, after = 400, 60, localizer.DEAD_RECKONING + 10, 60
+    blind = [replace(f, ranges=np.full_like(f.ranges, np.inf)) for f in frames[a + n:a + n + dark]]
+    joined = frames[a:a + n] + blind + frames[a + n + dark:a + n + dark + after]
+    truth = truth[a:a + n + dark + after]
+    seeing = localizer.propose
+    dark_from = frames[a + n].stamp
+    monkeypatch.setattr(localizer, "propose", lambda places, frame, *args, **kwargs: (
+        ([], []) if frame.stamp >= dark_from else seeing(places, frame, *args, **kwargs)))
+    monkeypatch.setattr(Places, "everywhere", lambda *args, **kwargs: None)
+    res = _localize("lab", joined, truth)
+    assert _first_right(res, 0, n) is not None  # localized before the dark ...
+    assert not res.localized[n + LOST_AFTER:n + dark].any()  # ... lost in it ...
+    again = _first_right(res, n + dark, n + dark + after)
+    assert again is not None and again <= WITHIN + localizer.ANYWHERE_EVERY  # ... found again
+    assert (res.errors()[res.declarations] <= 0.5).all(), "a wrong place was declared"
+    assert res.stats["places found where the robot dead-reckons"] >= 1
+    monkeypatch.setattr(localizer, "RECKON_MOST_XY", 0.0)
+    assert not _localize("lab", joined, truth).localized[n + dark:].any()
+
+
+@pytest.mark.parametrize(("offset", "declared", "trusted", "moved"),
+                         [((0.1, 0.0, np.radians(4.0)), True, False, True),
+                          ((0.1, 0.0, np.radians(4.0)), True, True, True),
+                          ((0.0, 0.0, 0.0), True, True, False),
+                          ((0.1, 0.0, np.radians(4.0)), False, False, False)])
+def test_a_place_declared_sure_of_a_pose_the_scan_fits_clearly_worse_is_moved(offset, declared,
+                                                                              trusted, moved):
+    """A place declared (lost now, or trusted) whose filter is sure (2 cm, 0.3 deg) of a pose
+    4 deg off, where the scan registers outside its gate at a pose that explains it clearly
+    better: moved there (the place lost on the Intel part's cut at 0.45 fitted again 4 deg
+    off for 60 scans, each registration to the right pose refused by the gate). One at the
+    right pose stays. So does a place never declared: moved so, a look-alike fitted clearly
+    better than its rivals and was declared (fr079's cut at 0.45)."""
+    loc, pose = _lab_localizer()
+    sure = np.diag([0.02**2, 0.02**2, np.radians(0.3) ** 2])
+    h = loc._start(pose + np.asarray(offset), sure)
+    h.declared, h.trusted = declared, trusted
+    h.record(1.0, localizer.NO_VIEW)
+    loc.hypotheses.append(h)
+    loc._track(h)
+    off = relative(pose, h.pose)
+    near = np.hypot(off[0], off[1]) < 0.05 and abs(off[2]) < np.radians(1.0)
+    assert near == (moved or not any(offset))
+    count = "places moved where the scan fits clearly better, outside their gate"
+    assert loc.stats[count] == (1 if moved else 0)

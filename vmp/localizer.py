@@ -42,10 +42,14 @@ them apart, and a search that found them one by one ran out of its tries.
 It stays localized while the scans fit; after :data:`LOST_AFTER` misses in a row it is lost:
 the hypothesis keeps moving with odometry (the robot may just be looking into a room the map
 never saw) while the search looks for the place anew (the robot may have been carried
-elsewhere, the kidnapped robot). The lost place takes over again once it fits
+elsewhere, the kidnapped robot), and the map is searched about where scan odometry has carried
+the place lost, in a window that grows with the distance driven (:meth:`Localizer._reckon`).
+The lost place takes over again once it fits
 :data:`MIN_FITS` scans in a row, unless a place found meanwhile explains those scans clearly
 better (the robot was there, and a look-alike room elsewhere is no reason to doubt it); a
-place found otherwise takes over as above.
+place found otherwise takes over as above. Its filter, sure of the heading it dead-reckoned,
+is moved to a registration outside its gate that explains the scan clearly better
+(:meth:`Localizer._restart`).
 
 Where places score alike by their end points (the simulated warehouse's rack bays along an
 aisle all score 1.000), the saved map's views may tell them apart (:mod:`vmp.views`: how many
@@ -222,6 +226,18 @@ REFINE_THETA = math.radians(5.0)
 # farther than ANYWHERE_APART (m, rad) from it (the shoulders of its own peak excluded).
 ANYWHERE_EVERY = 10
 ANYWHERE_APART = (1.0, math.radians(20.0))
+# Once lost, the robot is looked for where scan odometry has carried the place lost: within
+# RECKON_XY[0] plus RECKON_XY[1] times the distance driven since (m) either way, and
+# RECKON_THETA likewise (rad, per metre), at most RECKON_MOST_THETA; searched as the whole
+# map is (every ANYWHERE_EVERY scans at most, once moved), until the window would exceed
+# RECKON_MOST_XY. Scan odometry against one go's poses (from every 25th scan of ACES, fr079
+# and the Intel part) was off by 0.7-1.1 m and 8-9 deg at the 95th percentile after 10 m,
+# 1.9-2.2 m and 9-16 deg after 20 m, 2.8-3.6 m and 10-20 deg after 40 m, at most 6.1 m and
+# 26 deg after 80 m (docs/benchmarks.md, thirty-third session).
+RECKON_XY = (1.0, 0.1)
+RECKON_THETA = (math.radians(10.0), math.radians(0.3))
+RECKON_MOST_XY = 8.0
+RECKON_MOST_THETA = math.radians(30.0)
 # How well a proposal's pose is known when a hypothesis starts from it (m, m, rad).
 PROPOSAL_SIGMA = (0.1, 0.1, math.radians(2.0))
 
@@ -347,6 +363,13 @@ class Localizer:
         # (searched again only from elsewhere, as a milestone is).
         self._last_anywhere = -ANYWHERE_EVERY
         self._anywhere_at: FloatArray | None = None
+        # Where scan odometry has carried the place lost since the robot was lost, and how
+        # far it drove since (None once localized again, or too far to say); the last search
+        # there, as the whole map's.
+        self._reckoned: FloatArray | None = None
+        self._driven = 0.0
+        self._last_reckon = -ANYWHERE_EVERY
+        self._reckon_at: FloatArray | None = None
         self.state = State.SEARCHING
         self._lost = False  # localized once, and the scans stopped fitting
         # The robot's pose by odometry alone (its own frame), and where it was when each
@@ -378,6 +401,9 @@ class Localizer:
         self.front.predict(frame, points)
         u, q = self.front.increment
         self._odometry = compose(self._odometry, u)
+        if self._reckoned is not None:
+            self._reckoned = compose(self._reckoned, u)
+            self._driven += math.hypot(u[0], u[1])
         self._ranges = frame.ranges
         self._recent.append((self._within, u, frame.ranges))
         fitted = []
@@ -443,6 +469,11 @@ class Localizer:
             self._last_anywhere = self.scan
             self._anywhere_at = self._odometry.copy()
             self._anywhere()
+        if (self._reckoned is not None and self.scan - self._last_reckon >= ANYWHERE_EVERY
+                and (self._reckon_at is None or self._moved_since(self._reckon_at))):
+            self._last_reckon = self.scan
+            self._reckon_at = self._odometry.copy()
+            self._reckon()
         return proposals
 
     def _anywhere(self) -> None:
@@ -463,20 +494,54 @@ class Localizer:
         # logs' second halves localized, ACES's took 38.9 s against 46.6 (its slowest
         # scan while searching 412 ms against 690), the Intel part's 14.1 against 18.5
         # (docs/benchmarks.md, thirty-first session).
+        self._follow_clear_best(live, lambda least, exclude: self.places.everywhere(
+            live, least, exclude), "of the whole map", "in the whole map")
+
+    def _reckon(self) -> None:
+        """Follow the pose that explains this scan clearly better than every place followed
+        and every other pose farther than :data:`ANYWHERE_APART` from it, within the window
+        about where scan odometry has carried the place lost (:data:`RECKON_XY`,
+        :data:`RECKON_THETA`). The signatures propose only places with a milestone near,
+        and while they propose some the whole map is not searched: coming back from rooms
+        the first part of ACES never saw, the robot went unlocalized for a hundred scans where
+        the map explains them (scans 1,105-1,209 of its second half, the signatures proposing
+        look-alikes 18-35 m off) though the pose best in the whole map was the right one, and
+        the only one, from scan 1,183 on (docs/benchmarks.md, thirty-third session). A robot
+        carried off is found as before, by the signatures; found here, a place is judged as
+        any other."""
+        xy = RECKON_XY[0] + RECKON_XY[1] * self._driven
+        if xy > RECKON_MOST_XY:
+            self._reckoned = None  # driven too far to say where
+            return
+        theta = min(RECKON_THETA[0] + RECKON_THETA[1] * self._driven, RECKON_MOST_THETA)
+        live = search_points(self._points)
+        if len(live) < MIN_POINTS:
+            return
+        center, grid = self._reckoned, self.places.grid
+        self._follow_clear_best(live, lambda least, exclude: search(
+            grid, live, center, xy, theta, least, exclude),
+            "where the robot dead-reckons", "where the robot dead-reckons")
+
+    def _follow_clear_best(self, live: FloatArray,
+                           find: Callable[[float, tuple | None], Match | None],
+                           searched: str, found: str) -> None:
+        """Follow the pose ``find(least, exclude)`` returns for the points ``live``, where it
+        explains them clearly better than every place followed and every pose farther than
+        :data:`ANYWHERE_APART` from it (a look-alike elsewhere in the window searched);
+        counted as searches ``searched`` and places ``found``."""
         grid = self.places.grid
         least = max([MIN_SCORE] + [_least_clearly_better(grid.score(live, h.pose))
                                    for h in self.hypotheses])
         if least >= 1.0:
             return
-        self.stats["searches of the whole map"] += 1
-        best = self.places.everywhere(live, least)
+        self.stats[f"searches {searched}"] += 1
+        best = find(least, None)
         if best is None:
             return
-        other = self.places.everywhere(live, _least_as_well(best.score),
-                                       (best.pose.reshape(1, 3), *ANYWHERE_APART))
+        other = find(_least_as_well(best.score), (best.pose.reshape(1, 3), *ANYWHERE_APART))
         if other is not None and _as_well(other.score, best.score, GRID_MARGIN):
             return
-        self.stats["places found in the whole map"] += 1
+        self.stats[f"places found {found}"] += 1
         self._follow(self._registered(best.pose))
 
     def _refined(self, pose: FloatArray) -> FloatArray:
@@ -621,8 +686,12 @@ class Localizer:
             # which pose of a cycle it ends on moved the Intel part's relation error between
             # 0.017 and 0.021 m (docs/benchmarks.md, eighteenth session).
             reg = register(places.reference, near, h.pose, corners=False, cycles=True)
-            update = (places.fits(reg, near, self.config.registration)
-                      and h.filter.mahalanobis2(reg.pose, reg.covariance) <= CHI2_3DOF_99)
+            if places.fits(reg, near, self.config.registration):
+                update = h.filter.mahalanobis2(reg.pose, reg.covariance) <= CHI2_3DOF_99
+                if (not update and h.declared
+                        and _clearly_better(places.score(near, reg.pose),
+                                            places.score(near, h.pose))):
+                    self._restart(h, reg.pose)
         # Scored where the scan lands: registered, or predicted when ICP did not fit (part
         # of the view may lie outside the map, a room it never saw) or was not run.
         score = places.score(near, reg.pose if update else h.pose)
@@ -638,6 +707,22 @@ class Localizer:
         h.streak += 1
         h.fitted.append(score)
         return score
+
+    def _restart(self, h: Hypothesis, pose: FloatArray) -> None:
+        """Move ``h``, a place declared, to ``pose``, known as well as a place proposed: its
+        filter was sure of a pose the scan fits clearly worse. A place dead-reckoned through
+        scans that did not fit comes out of them as sure of its heading as before (within a
+        degree), and a registration to the right pose lay outside its gate scan after scan:
+        on the Intel part's cut at 0.45 the place lost fitted again 4 deg off, scoring
+        0.75-0.81 where the registration scored 0.93-1.000, for 60 scans, and was not
+        resumed. A place trusted drifts so too, its scan odometry surer than it should be
+        (on the Intel part's second half 0.27 m off, moved to 0.14; 0.16 m, moved to 0.02).
+        Only a place declared, where the robot was: moved so, a place proposed that was not
+        the right one fitted its look-alike clearly better than its rivals did (fr079's cut
+        at 0.45, 12 m off, declared; docs/benchmarks.md, thirty-third session). One that
+        only fits as well, as the next pilaster of a corridor does, stays."""
+        h.filter = PoseFilter(pose, _proposal_covariance(pose), self.config.motion)
+        self.stats["places moved where the scan fits clearly better, outside their gate"] += 1
 
     def _record(self, fitted: list[tuple[Hypothesis, float]]) -> None:
         """Record the scores of the places ``fitted`` this scan, each with its view (one call
@@ -656,8 +741,7 @@ class Localizer:
         is already there."""
         if any(_same(h.pose, pose) for h in self.hypotheses):
             return
-        cov = rotate_covariance(np.diag(np.square(PROPOSAL_SIGMA)), pose[2])
-        h = self._start(pose, cov)
+        h = self._start(pose, _proposal_covariance(pose))
         score = self.places.score(self._within, pose)
         h.past, h.past_views, view = self._past(pose, score)
         h.record(score, view)
@@ -923,6 +1007,8 @@ class Localizer:
             # carried to a look-alike place may fit the old one again).
             trusted.trusted = False
             trusted.searches = 0
+            self._reckoned, self._driven = trusted.pose.copy(), 0.0
+            self._reckon_at = None
             trusted = None
             self._lost = True
         # Not localized (or lost): the best-scoring hypothesis that fits now, has fitted and
@@ -1094,9 +1180,15 @@ class Localizer:
         vouched = _view_share(best) <= VIEW_MOST
         best.declared_views = [v for v in best.view_history if v[1]] if vouched else []
         self._lost = False
+        self._reckoned = None
         self.hypotheses = [best]
         self.stats[count] += 1
         return State.LOCALIZED
+
+
+def _proposal_covariance(pose: FloatArray) -> FloatArray:
+    """How well a place proposed at ``pose`` is known (:data:`PROPOSAL_SIGMA`), map frame."""
+    return rotate_covariance(np.diag(np.square(PROPOSAL_SIGMA)), pose[2])
 
 
 def _rival(h: Hypothesis, best: Hypothesis) -> bool:
