@@ -464,17 +464,20 @@ class Localizer:
         self._tried.update((mid, self._odometry.copy()) for mid in searched)
         for p in proposals:
             self._follow(self._refined(p.pose))
-        if (not proposals and self.scan - self._last_anywhere >= ANYWHERE_EVERY
-                and (self._anywhere_at is None or self._moved_since(self._anywhere_at))):
+        if not proposals and self._due(self._last_anywhere, self._anywhere_at):
             self._last_anywhere = self.scan
             self._anywhere_at = self._odometry.copy()
             self._anywhere()
-        if (self._reckoned is not None and self.scan - self._last_reckon >= ANYWHERE_EVERY
-                and (self._reckon_at is None or self._moved_since(self._reckon_at))):
+        if self._reckoned is not None and self._due(self._last_reckon, self._reckon_at):
             self._last_reckon = self.scan
             self._reckon_at = self._odometry.copy()
             self._reckon()
         return proposals
+
+    def _due(self, last: int, at: FloatArray | None) -> bool:
+        """Whether a search last made at scan ``last``, from ``at`` by odometry (None: from
+        nowhere yet), is due again: :data:`ANYWHERE_EVERY` scans on, and from a new view."""
+        return self.scan - last >= ANYWHERE_EVERY and (at is None or self._moved_since(at))
 
     def _anywhere(self) -> None:
         """Follow the pose that explains this scan best in the whole map
