@@ -284,19 +284,39 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
     rotations searched about a centre's heading, ``reach`` the farthest point's range in
     cells."""
     evaluated = 0
-    cos = np.empty(turns.shape[0])
-    sin = np.empty(turns.shape[0])
+    n_rot = turns.shape[0]
+    cos = np.empty(n_rot)
+    sin = np.empty(n_rot)
+    top_level = _top_level(steps, depth)
+    corners = _corners(steps, top_level)
+    # Each rotation's points, placed at the window's centre: flat cell indices (R, M). Only
+    # the groups' middle rotations at first: where no group can score ``min_score`` (most
+    # windows of a search along the saved path), the others are never needed.
+    flat = np.empty((n_rot, pts.shape[0]), dtype=np.int64)
+    placed = np.zeros(n_rot, dtype=np.bool_)
     for k in range(centers.shape[0]):
         thetas = centers[k, 2] + turns
-        for r in range(thetas.shape[0]):
+        for r in range(n_rot):
             cos[r] = math.cos(thetas[r])
             sin[r] = math.sin(thetas[r])
-        # Each rotation's points, placed at the window's centre: flat cell indices (R, M).
-        flat = _flat_cells(pts, centers[k, 0], centers[k, 1], cos, sin, ox, oy, res, lo,
-                           hi_x, hi_y, stride)
+        group, middle, h = _groups(thetas, reach, steps, depth, lo, 1 << top_level)
+        placed[:] = False
+        for g in range(middle.shape[0]):
+            placed[middle[g]] = True
+        _place(pts, centers[k, 0], centers[k, 1], cos, sin, ox, oy, res, lo, hi_x, hi_y,
+               stride, flat, placed)
+        alive, bounded = _groups_alive(levels, flat, scale, depth, min_score, stride,
+                                       corners, middle, h)
+        evaluated += bounded
+        if not _any(alive):
+            continue
+        for r in range(n_rot):
+            placed[r] = not placed[r]
+        _place(pts, centers[k, 0], centers[k, 1], cos, sin, ox, oy, res, lo, hi_x, hi_y,
+               stride, flat, placed)
         score, r, x, y, n = _branch_and_bound(levels, flat, scale, steps, depth, min_score,
                                               stride, centers[k], thetas, res, ex_pose,
-                                              ex_xy, ex_theta, lo, reach)
+                                              ex_xy, ex_theta, top_level, alive, group)
         evaluated += n
         if r >= 0:
             return k, score, r, x, y, evaluated
@@ -304,17 +324,27 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
 
 
 @kernel
-def _flat_cells(pts, x, y, cos, sin, ox, oy, res, lo, hi_x, hi_y, stride
-                ):  # pragma: no cover - compiled
-    """Flat indices ``(R, M)`` of the cells of ``pts`` placed at (x, y) and turned by each
-    rotation of cosine ``cos[r]`` and sine ``sin[r]``, clamped to :attr:`SearchGrid.bounds`."""
-    out = np.empty((cos.shape[0], pts.shape[0]), dtype=np.int64)
+def _any(values):  # pragma: no cover - compiled
+    """Whether any of ``values`` is not zero."""
+    for v in values.ravel():
+        if v:
+            return True
+    return False
+
+
+@kernel
+def _place(pts, x, y, cos, sin, ox, oy, res, lo, hi_x, hi_y, stride, out, rows
+           ):  # pragma: no cover - compiled
+    """Into ``out`` (R, M), for each rotation ``r`` flagged in ``rows``: the flat cell indices
+    of ``pts`` placed at (x, y) and turned by the rotation of cosine ``cos[r]`` and sine
+    ``sin[r]``, clamped to :attr:`SearchGrid.bounds`."""
     for r in range(cos.shape[0]):
+        if not rows[r]:
+            continue
         c, s = cos[r], sin[r]
         for k in range(pts.shape[0]):
             out[r, k] = (_cell(x + c * pts[k, 0] - s * pts[k, 1], ox, res, lo, hi_x) * stride
                          + _cell(y + s * pts[k, 0] + c * pts[k, 1], oy, res, lo, hi_y))
-    return out
 
 
 @kernel
@@ -343,25 +373,20 @@ def _scores(levels, level, flat, rot, ox, oy, n, scale, stride, center, thetas, 
 
 @kernel
 def _branch_and_bound(levels, flat, scale, steps, depth, min_score, stride, center, thetas,
-                      res, ex_pose, ex_xy, ex_theta, lo, reach):  # pragma: no cover - compiled
+                      res, ex_pose, ex_xy, ex_theta, top_level, alive,
+                      group):  # pragma: no cover - compiled
     """The search level by level: (score, rotation, x and y offset in cells, candidates
     scored), rotation -1 when nothing scores ``min_score``. ``levels`` (depth + 1, cells) are
     the grid's levels flattened, ``flat`` (rotations, points) the points' cells at the
-    window's centre, clamped no lower than ``lo``, ``reach`` the farthest point's range in
-    cells. The coarsest level searched is the first whose blocks cover the window (the
-    levels above it bound nothing tighter); where the top level's blocks are wider than
-    that, rotations are first bounded in groups (:func:`_groups_alive`). Every level keeps the
-    candidates that may still beat the best exact score, dives greedily from the best of
-    them to set that score, and scores their children (the first of equal scores wins
-    throughout)."""
-    top_level = 0
-    while top_level < depth and (1 << top_level) < 2 * steps + 1:
-        top_level += 1
-    top = 1 << top_level
-    corners = np.arange(-steps, steps + 1, top)
+    window's centre, clamped no lower than the grid's bounds. The search starts on
+    ``top_level`` (:func:`_top_level`), at the corners whose rotations' group
+    (``group``, :func:`_groups`) ``alive`` says may score ``min_score``
+    (:func:`_groups_alive`). Every level keeps the candidates that may still beat the best
+    exact score, dives greedily from the best of them to set that score, and scores their
+    children (the first of equal scores wins throughout)."""
+    corners = _corners(steps, top_level)
     nc = corners.shape[0]
-    alive, group, evaluated = _groups_alive(levels, flat, scale, steps, depth, min_score,
-                                            stride, thetas, lo, reach, corners, top)
+    evaluated = 0
     n = 0
     for r in range(thetas.shape[0]):
         for a in range(nc):
@@ -415,20 +440,30 @@ def _branch_and_bound(levels, flat, scale, steps, depth, min_score, stride, cent
 
 
 @kernel
-def _groups_alive(levels, flat, scale, steps, depth, min_score, stride, thetas, lo, reach,
-                  corners, top):  # pragma: no cover - compiled
-    """Which groups of neighbouring rotations may score ``min_score`` at each corner's block
-    of ``top`` cells: (alive[group, a, b], each rotation's group, bounds scored). A group's
-    rotations place each point within ``h`` cells of where the middle one does (``reach``
-    times the turn between them, plus one for the rounding), so the top level's block of
-    ``2^depth`` cells set ``h`` cells back bounds every pose of the group in a corner's block
-    where that block and ``2 h`` fit in it; one rotation to a group where nothing does. (In
-    the localizer's search along the saved path, a window of 13 cells a side under blocks
-    of 32, the 43 rotations fall into 3 groups; in ACES's second half 1,980 of the 4,690
-    windows searched ended there, and its path searches took 119 ms against 184;
-    docs/benchmarks.md, thirtieth session.)"""
+def _top_level(steps, depth):  # pragma: no cover - compiled
+    """The coarsest level a window of ``steps`` cells either way is searched from: the first
+    whose blocks cover the window (the levels above it bound nothing tighter)."""
+    top_level = 0
+    while top_level < depth and (1 << top_level) < 2 * steps + 1:
+        top_level += 1
+    return top_level
+
+
+@kernel
+def _corners(steps, top_level):  # pragma: no cover - compiled
+    """The offsets (cells, either axis) of the top level's blocks over the window."""
+    return np.arange(-steps, steps + 1, 1 << top_level)
+
+
+@kernel
+def _groups(thetas, reach, steps, depth, lo, top):  # pragma: no cover - compiled
+    """Groups of neighbouring rotations of ``thetas`` bounded together on the top level
+    (:func:`_groups_alive`): each rotation's group, each group's middle rotation, and ``h``,
+    the most cells a point of the group's rotations lies from where the middle one places
+    it (``reach`` times the turn between them, plus one for the rounding); 0 where the
+    top level's block of ``2^depth`` cells set ``h`` cells back cannot hold the block of
+    ``top`` cells under a corner and ``2 h`` more, and each rotation is a group of its own."""
     n_rot = thetas.shape[0]
-    nc = corners.shape[0]
     span = min(top, 2 * steps + 1)  # cells of the window under one corner's block, at most
     room = min(((1 << depth) - span) // 2, lo - steps)  # the widest h that fits
     half = 0  # rotations each side of a group's middle
@@ -442,14 +477,31 @@ def _groups_alive(levels, flat, scale, steps, depth, min_score, stride, thetas, 
     group = np.empty(n_rot, dtype=np.int64)
     for r in range(n_rot):
         group[r] = r // size
-    alive = np.ones((n_groups, nc, nc), dtype=np.int64)
-    if half == 0:
-        return alive, group, 0
-    level = levels[depth]
-    h = _shift(reach * half * turn)  # no group's rotation is farther from its middle
-    evaluated = 0
+    middle = np.empty(n_groups, dtype=np.int64)
     for g in range(n_groups):
-        row = flat[min(g * size + half, n_rot - 1)]  # the group's middle rotation
+        middle[g] = min(g * size + half, n_rot - 1)
+    return group, middle, (_shift(reach * half * turn) if half > 0 else 0)
+
+
+@kernel
+def _groups_alive(levels, flat, scale, depth, min_score, stride, corners, middle,
+                  h):  # pragma: no cover - compiled
+    """Which groups of rotations (:func:`_groups`; ``flat`` holds their middle rotations'
+    cells) may score ``min_score`` at each corner's block: (alive[group, a, b], bounds
+    scored). The top level's block set ``h`` cells back bounds every pose of the group in a
+    corner's block; all alive, nothing scored, where ``h`` is 0. (In the localizer's search
+    along the saved path, a window of 13 cells a side under blocks of 32, the 43 rotations
+    fall into 3 groups; in ACES's second half 1,980 of the 4,690 windows searched ended
+    there, and its path searches took 119 ms against 184; docs/benchmarks.md, thirtieth
+    session.)"""
+    nc = corners.shape[0]
+    alive = np.ones((middle.shape[0], nc, nc), dtype=np.int64)
+    if h == 0:
+        return alive, 0
+    level = levels[depth]
+    evaluated = 0
+    for g in range(middle.shape[0]):
+        row = flat[middle[g]]
         for a in range(nc):
             for b in range(nc):
                 off = (corners[a] - h) * stride + corners[b] - h
@@ -459,7 +511,7 @@ def _groups_alive(levels, flat, scale, steps, depth, min_score, stride, thetas, 
                 evaluated += 1
                 if total / scale < min_score:
                     alive[g, a, b] = 0
-    return alive, group, evaluated
+    return alive, evaluated
 
 
 @kernel
