@@ -227,13 +227,13 @@ def test_scan_odometry_stops_its_icp_where_the_steps_cycle_only_when_asked(monke
     real = so.register
 
     def register(*args, **kwargs):
-        asked.append(kwargs.get("cycles", False))
+        asked.append(kwargs.get("stops_early", False))
         return real(*args, **kwargs)
 
     monkeypatch.setattr(so, "register", register)
-    for cycles in (False, True):
-        odo = ScanOdometry(ScanOdometryConfig(), RegistrationConfig(), MotionNoise(), cycles)
+    for early in (False, True):
+        odo = ScanOdometry(ScanOdometryConfig(), RegistrationConfig(), MotionNoise(), early)
         asked.clear()
         odo.increment(_room_scan(0.0), None)
         odo.increment(_room_scan(0.1), np.array([0.1, 0.0, 0.0]))
-        assert asked == [cycles]
+        assert asked == [early]

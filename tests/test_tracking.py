@@ -419,8 +419,8 @@ def test_the_localizers_scan_odometry_stops_where_its_icp_cycles_and_a_mappers_d
     the cap. A mapper's runs on: its maps depend on which pose of a cycle ICP ends on."""
     from vmp.frontend import FrontEnd
 
-    assert Localizer(places=_NoLookAlikes()).front.scan_odometry.cycles
-    assert not FrontEnd(MappingConfig()).scan_odometry.cycles
+    assert Localizer(places=_NoLookAlikes()).front.scan_odometry.stops_early
+    assert not FrontEnd(MappingConfig()).scan_odometry.stops_early
 
 
 class _TwoSpots:

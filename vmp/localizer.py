@@ -351,7 +351,7 @@ class Localizer:
         # pulling its own way; 0.022 m with scan odometry (docs/benchmarks.md). Its ICP stops
         # where its steps cycle: 126 of 1,535 on ACES's tracked half ran to the cap, 27 % of
         # that ICP's time (docs/benchmarks.md, nineteenth session).
-        self.front = FrontEnd(self.config, filtered=False, cycles=True)
+        self.front = FrontEnd(self.config, filtered=False, stops_early=True)
         self.stats: Counter[str] = Counter()
         self.hypotheses: list[Hypothesis] = []
         self.scan = -1
@@ -654,7 +654,7 @@ class Localizer:
 
     def _registered(self, pose: FloatArray) -> FloatArray:
         """``pose`` registered against the whole map, where that fits; else ``pose``."""
-        reg = register(self.places.reference, self._within, pose, corners=False, cycles=True)
+        reg = register(self.places.reference, self._within, pose, corners=False, stops_early=True)
         return reg.pose if self.places.fits(reg, self._within, self.config.registration) else pose
 
     # ---- hypotheses ------------------------------------------------------------------------
@@ -688,7 +688,7 @@ class Localizer:
             # them would run to the cap (see vmp.icp_kernel.CYCLE). Mapping's ICP runs on:
             # which pose of a cycle it ends on moved the Intel part's relation error between
             # 0.017 and 0.021 m (docs/benchmarks.md, eighteenth session).
-            reg = register(places.reference, near, h.pose, corners=False, cycles=True)
+            reg = register(places.reference, near, h.pose, corners=False, stops_early=True)
             if places.fits(reg, near, self.config.registration):
                 update = h.filter.mahalanobis2(reg.pose, reg.covariance) <= CHI2_3DOF_99
                 if (not update and h.declared

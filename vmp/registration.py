@@ -140,23 +140,28 @@ def _contiguous(points: FloatArray) -> FloatArray:
 
 
 def register(reference: Reference, points: FloatArray, initial: FloatArray,
-             corners: bool = True, cycles: bool = False) -> Registration:
+             corners: bool = True, stops_early: bool = False) -> Registration:
     """Point-to-line ICP of ``points`` ``(M, 2)`` (live scanner frame) onto the reference;
     where that leaves a direction free and ``corners`` allows, again with corner points
-    matched point to point. With ``cycles``, ICP stops where its steps cycle
-    (:data:`vmp.icp_kernel.CYCLE`) rather than run on to its cap."""
+    matched point to point. With ``stops_early``, ICP stops where its steps cycle
+    (:data:`vmp.icp_kernel.CYCLE`) rather than run on to its cap, and where a step changes
+    the matched points' residuals by less than :data:`TOLERANCE` (:func:`run_icp`'s
+    ``settle``) however far it moves the pose."""
     pts = np.asarray(points, dtype=np.float64)
-    revisit = REVISIT if cycles else 0.0
-    reg, free = _icp(reference, pts, np.asarray(initial, dtype=np.float64), False, revisit)
+    revisit = REVISIT if stops_early else 0.0
+    settle = TOLERANCE if stops_early else 0.0
+    reg, free = _icp(reference, pts, np.asarray(initial, dtype=np.float64), False, revisit,
+                     settle)
     if corners and free and reference.corner.any():
-        with_corners, _ = _icp(reference, pts, reg.pose, True, revisit)
+        with_corners, _ = _icp(reference, pts, reg.pose, True, revisit, settle)
         if np.isfinite(with_corners.rms):
             return replace(with_corners, by_corners=True)
     return reg
 
 
 def _icp(reference: Reference, pts: FloatArray, initial: FloatArray,
-         corners: bool, revisit: float = 0.0) -> tuple[Registration, int]:
+         corners: bool, revisit: float = 0.0, settle: float = 0.0
+         ) -> tuple[Registration, int]:
     """One ICP run from ``initial`` (compiled: :mod:`vmp.icp_kernel`); the registration and
     how many directions of translation its fit leaves free (none when nothing was
     matched)."""
@@ -165,7 +170,7 @@ def _icp(reference: Reference, pts: FloatArray, initial: FloatArray,
         reference.corner,
         np.ascontiguousarray(pts), float(initial[0]), float(initial[1]), float(initial[2]),
         corners, START_DISTANCE, MIN_DISTANCE, HUBER, CORNER_WEIGHT, TOLERANCE,
-        MAX_ITERATIONS, revisit)
+        MAX_ITERATIONS, revisit, settle)
     free = 0
     if math.isfinite(rms) and wsum > 0:
         cov, free = fit_covariance(H, rms, wsum, MIN_CONSTRAINT, DEGENERATE_SHARE,

@@ -61,11 +61,12 @@ class ScanOdometry:
     """Turn wheel increments into registration-refined increments with covariances."""
 
     def __init__(self, config: ScanOdometryConfig, registration: RegistrationConfig,
-                 noise: MotionNoise, cycles: bool = False) -> None:
+                 noise: MotionNoise, stops_early: bool = False) -> None:
         self.config, self.registration, self.noise = config, registration, noise
-        # Whether its ICP stops where its steps cycle (vmp.registration.register's
-        # ``cycles``): a localizer's does; a mapper's runs on, as its maps depend on it.
-        self.cycles = cycles
+        # Whether its ICP stops early, where its steps cycle or no longer change the fit
+        # (vmp.registration.register's ``stops_early``): a localizer's does; a mapper's runs
+        # on, as its maps depend on it.
+        self.stops_early = stops_early
         self._key: Reference | None = None
         self._rel = np.zeros(3)  # the last scan's pose in the keyframe's frame
         # The keyframes before it, oldest first, each with its pose in the keyframe's frame:
@@ -123,7 +124,7 @@ class ScanOdometry:
         guess = compose(self._rel, wheel)
         # Without corner matching: between keyframes a few decimetres apart its sampling bias
         # (a corner is hit at a slightly different place by every scan) adds up along the path.
-        reg = register(self._key, points, guess, corners=False, cycles=self.cycles)
+        reg = register(self._key, points, guess, corners=False, stops_early=self.stops_early)
         u_reg = relative(self._rel, reg.pose)
         d = u_reg - wheel
         d[2] = (d[2] + math.pi) % (2 * math.pi) - math.pi
@@ -252,7 +253,7 @@ class ScanOdometry:
         ref, pose = self._older[0]
         back = inverse(pose)
         at_wheels, at_scans = compose(back, wheels), compose(back, scans)
-        check = register(ref, points, at_wheels, corners=False, cycles=self.cycles)
+        check = register(ref, points, at_wheels, corners=False, stops_early=self.stops_early)
         if not fits(check, self.registration):
             return False
         to_scans = relative(at_scans, check.pose)
