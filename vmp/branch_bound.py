@@ -299,6 +299,8 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
         for r in range(n_rot):
             cos[r] = math.cos(thetas[r])
             sin[r] = math.sin(thetas[r])
+        # Grouped per centre: the turn between rotations is taken from this centre's
+        # headings, as the search always did (rounded so, a group may differ by one).
         group, middle, h = _groups(thetas, reach, steps, depth, lo, 1 << top_level)
         placed[:] = False
         for g in range(middle.shape[0]):
@@ -308,7 +310,7 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
         alive, bounded = _groups_alive(levels, flat, scale, depth, min_score, stride,
                                        corners, middle, h)
         evaluated += bounded
-        if not _any(alive):
+        if not alive.any():
             continue
         for r in range(n_rot):
             placed[r] = not placed[r]
@@ -321,15 +323,6 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
         if r >= 0:
             return k, score, r, x, y, evaluated
     return -1, 0.0, -1, 0, 0, evaluated
-
-
-@kernel
-def _any(values):  # pragma: no cover - compiled
-    """Whether any of ``values`` is not zero."""
-    for v in values.ravel():
-        if v:
-            return True
-    return False
 
 
 @kernel
