@@ -520,17 +520,20 @@ def _followed(loc: localizer.Localizer, pose: np.ndarray, scores: list[float],
     return h
 
 
-@pytest.mark.parametrize(("sigma", "placed"), [(0.15, True), (0.02, False)])
+@pytest.mark.parametrize(("sigma", "trusted", "placed"),
+                         [(0.15, False, True), (0.02, False, False), (0.15, True, False)])
 @pytest.mark.parametrize("heading", [0.0, 45.0, 90.0])
 def test_a_place_unsure_along_a_direction_is_placed_there_by_its_views(heading, sigma,
-                                                                          placed):
+                                                                          trusted, placed):
     """A place followed 0.15 m off the true pose, its filter unsure along that direction
     (``sigma``, m) and sure across it: where it is unsure its views from offsets along that
     direction place it within a step of the truth; where it is sure, the offsets stay
-    within its own spread, and it is left where it is."""
+    within its own spread, and it is left where it is. A place trusted (watched by its
+    views) is left to the registrations that track it."""
     loc, pose = _lab_localizer()
     way = np.array([np.cos(np.radians(heading)), np.sin(np.radians(heading)), 0.0])
-    h = _followed(loc, pose + 0.15 * way, [1.0] * 5)
+    h = _followed(loc, pose + 0.15 * way, [1.0] * 5, trusted=trusted)
+    h.declared_views = [(0, 180)] * localizer.MIN_VIEWS
     h.filter = localizer.PoseFilter(h.pose, rotate_covariance(
         np.diag([sigma**2, 0.01**2, 1e-4]), np.radians(heading)), loc.config.motion)
     loc._record([(h, 1.0)])

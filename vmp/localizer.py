@@ -771,9 +771,9 @@ class Localizer:
         a corridor free, and scan odometry carries the place along it, drifting: the right
         place of the simulated warehouse's kidnap of seed 102 went from 0.08 to 0.20 m off
         along its aisle over 50 scans, its views then contradicting 2-4 % of the beams where
-        they had contradicted none, as many as a look-alike's, and the two were told apart
-        after 61 scans. The views see along the aisle (a beam stopped by a rack's end, or
-        passing it): the offsets whose views contradict about as few beams as the fewest (within
+        they had contradicted none, as many as a look-alike's, and it was declared after 61
+        scans (26 placed so). The views see along the aisle (a beam stopped by a rack's end,
+        or passing it): the offsets whose views contradict about as few beams as the fewest (within
         :data:`VIEW_Z` standard deviations of a count) are where the place is, as sure as half
         their spread (:data:`PLACE_STEP` at least). Only where they are one stretch, not every
         offset, and the fewest is at most :data:`VIEW_MOST` of the beams known: on the real
@@ -1310,10 +1310,13 @@ def _least_sure(h: Hypothesis) -> tuple[FloatArray, FloatArray]:
     map frame), and the offsets along it its views are taken from
     (:meth:`Localizer._placed_by_views`): :data:`PLACE_STEP` apart, out to
     :data:`PLACE_SIGMAS` standard deviations either way, :data:`PLACE_MOST` steps at most,
-    0 in the middle."""
+    0 in the middle; 0 alone for a place trusted. (A place trusted is registered against
+    the map as it is tracked, and placing it so, its views taken from up to thirteen
+    poses a scan where it was watched by them, tracked ACES's second half at x2.89 of
+    mapping's speed, against x3.19.)"""
     variances, directions = np.linalg.eigh(h.filter.covariance[:2, :2])
     sigma = math.sqrt(max(float(variances[1]), 0.0))
-    steps = min(int(PLACE_SIGMAS * sigma / PLACE_STEP), PLACE_MOST)
+    steps = 0 if h.trusted else min(int(PLACE_SIGMAS * sigma / PLACE_STEP), PLACE_MOST)
     along = np.array([directions[0, 1], directions[1, 1], 0.0])
     return along, PLACE_STEP * np.arange(-steps, steps + 1)
 
