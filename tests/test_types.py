@@ -18,6 +18,7 @@ from vmp.types import (
     rotate_covariance,
     rotation_matrix,
     transform_points,
+    widest_direction,
     widest_variance,
     wrap_angle,
 )
@@ -223,3 +224,16 @@ def test_one_pose_takes_the_same_bits_as_the_arrays():
     with np.errstate(invalid="ignore"):
         assert np.isnan(compose([0.0, 0.0, math.inf], [1.0, 0.0, 0.0])).all()
         assert np.isnan(inverse([1.0, 0.0, math.nan])).all()
+
+
+def test_the_widest_direction_is_the_eigenvector_of_the_widest_variance():
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        a = rng.normal(size=(3, 3)) * rng.uniform(1e-4, 10.0)
+        cov = a @ a.T
+        want = np.linalg.eigh(cov[:2, :2])[1][:, -1]
+        got = widest_direction(cov)
+        assert math.isclose(np.linalg.norm(got), 1.0, rel_tol=1e-12)
+        assert math.isclose(abs(got @ want), 1.0, rel_tol=1e-9)  # either sign
+    np.testing.assert_allclose(abs(widest_direction(np.diag([0.5, 2.0, 9.0]))), [0.0, 1.0],
+                               atol=1e-15)  # along y, whatever the heading's variance

@@ -318,7 +318,8 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
                stride, flat, placed)
         score, r, x, y, n = _branch_and_bound(levels, flat, scale, steps, depth, min_score,
                                               stride, centers[k], thetas, res, ex_pose,
-                                              ex_xy, ex_theta, top_level, alive, group)
+                                              ex_xy, ex_theta, top_level, corners, alive,
+                                              group)
         evaluated += n
         if r >= 0:
             return k, score, r, x, y, evaluated
@@ -366,18 +367,17 @@ def _scores(levels, level, flat, rot, ox, oy, n, scale, stride, center, thetas, 
 
 @kernel
 def _branch_and_bound(levels, flat, scale, steps, depth, min_score, stride, center, thetas,
-                      res, ex_pose, ex_xy, ex_theta, top_level, alive,
+                      res, ex_pose, ex_xy, ex_theta, top_level, corners, alive,
                       group):  # pragma: no cover - compiled
     """The search level by level: (score, rotation, x and y offset in cells, candidates
     scored), rotation -1 when nothing scores ``min_score``. ``levels`` (depth + 1, cells) are
     the grid's levels flattened, ``flat`` (rotations, points) the points' cells at the
     window's centre, clamped no lower than the grid's bounds. The search starts on
-    ``top_level`` (:func:`_top_level`), at the corners whose rotations' group
-    (``group``, :func:`_groups`) ``alive`` says may score ``min_score``
+    ``top_level`` (:func:`_top_level`), at the ``corners`` (:func:`_corners`) whose
+    rotations' group (``group``, :func:`_groups`) ``alive`` says may score ``min_score``
     (:func:`_groups_alive`). Every level keeps the candidates that may still beat the best
     exact score, dives greedily from the best of them to set that score, and scores their
     children (the first of equal scores wins throughout)."""
-    corners = _corners(steps, top_level)
     nc = corners.shape[0]
     evaluated = 0
     n = 0

@@ -128,6 +128,8 @@ from vmp.types import (
     relative,
     rotate_covariance,
     transform_points,
+    widest_direction,
+    widest_variance,
 )
 
 __all__ = ["Hypothesis", "Localizer", "State"]
@@ -363,8 +365,8 @@ class Localizer:
         # scan odometry would), tracking scored 0.03 m on the Intel part's second half
         # against 0.014 m mapped, each scan's registration against the map's thick walls
         # pulling its own way; 0.022 m with scan odometry (docs/benchmarks.md). Its ICP stops
-        # where its steps cycle: 126 of 1,535 on ACES's tracked half ran to the cap, 27 % of
-        # that ICP's time (docs/benchmarks.md, nineteenth session).
+        # where its steps cycle (126 of 1,535 on ACES's tracked half ran to the cap, 27 % of
+        # that ICP's time; docs/benchmarks.md, nineteenth session) or no longer change the fit.
         self.front = FrontEnd(self.config, filtered=False, stops_early=True)
         self.stats: Counter[str] = Counter()
         self.hypotheses: list[Hypothesis] = []
@@ -698,8 +700,9 @@ class Localizer:
             # and corners along an aisle, matched those band points point to point on 10,137
             # of ACES's 11,567 registrations; the direction lines leave free stays the
             # filter's, carried by scan odometry (docs/benchmarks.md, 2026-12-02).
-            # Stopped where its steps cycle: against a saved map's wall bands a quarter of
-            # them would run to the cap (see vmp.icp_kernel.CYCLE). Mapping's ICP runs on:
+            # Stopped where its steps cycle (against a saved map's wall bands a quarter of
+            # them would run to the cap: vmp.icp_kernel.CYCLE) or no longer change the fit
+            # (vmp.icp_kernel.run_icp's ``settle``). Mapping's ICP runs on:
             # which pose of a cycle it ends on moved the Intel part's relation error between
             # 0.017 and 0.021 m (docs/benchmarks.md, eighteenth session).
             reg = register(places.reference, near, h.pose, corners=False, stops_early=True)
@@ -1312,17 +1315,11 @@ def _least_sure(h: Hypothesis) -> tuple[FloatArray, FloatArray]:
     :data:`PLACE_SIGMAS` standard deviations either way, :data:`PLACE_MOST` steps at most,
     0 in the middle; 0 alone for a place trusted: it is registered against the map as it
     is tracked."""
-    if h.trusted:  # before the eigenvectors (7.7 us): a tracked scan costs some 370 us
-        return _NOWHERE, _HERE
-    variances, directions = np.linalg.eigh(h.filter.covariance[:2, :2])
-    sigma = math.sqrt(max(float(variances[1]), 0.0))
-    steps = min(int(PLACE_SIGMAS * sigma / PLACE_STEP), PLACE_MOST)
-    along = np.array([directions[0, 1], directions[1, 1], 0.0])
-    return along, PLACE_STEP * np.arange(-steps, steps + 1)
-
-
-_NOWHERE = np.zeros(3)  # no direction: the place is seen from where it is only
-_HERE = np.zeros(1)
+    if h.trusted:
+        return np.zeros(3), np.zeros(1)
+    cov = h.filter.covariance
+    steps = min(int(PLACE_SIGMAS * math.sqrt(widest_variance(cov)) / PLACE_STEP), PLACE_MOST)
+    return np.append(widest_direction(cov), 0.0), PLACE_STEP * np.arange(-steps, steps + 1)
 
 
 def _view_share(h: Hypothesis) -> float:

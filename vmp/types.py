@@ -29,6 +29,7 @@ __all__ = [
     "rotate_covariance",
     "rotation_matrix",
     "transform_points",
+    "widest_direction",
     "widest_variance",
     "wrap_angle",
 ]
@@ -104,6 +105,14 @@ def widest_variance(cov: ArrayLike) -> float:
     mapper asks several times a scan)."""
     a, b, d = float(cov[0][0]), 0.5 * (float(cov[0][1]) + float(cov[1][0])), float(cov[1][1])
     return max(0.5 * (a + d) + math.hypot(0.5 * (a - d), b), 0.0)  # rounding: never below 0
+
+
+def widest_direction(cov: ArrayLike) -> FloatArray:
+    """The unit direction ``(2,)`` of the largest variance of a pose covariance's position
+    (:func:`widest_variance`): the eigenvector of its 2x2 block, in closed form."""
+    a, b, d = float(cov[0][0]), 0.5 * (float(cov[0][1]) + float(cov[1][0])), float(cov[1][1])
+    angle = 0.5 * math.atan2(2.0 * b, a - d)
+    return np.array([math.cos(angle), math.sin(angle)])
 
 
 def compose_covariance(a: ArrayLike, cov_a: ArrayLike, b: ArrayLike, cov_b: ArrayLike
