@@ -324,6 +324,41 @@ def test_rotations_bounded_in_groups_keep_every_answer():
     assert found[1].score >= floor
 
 
+def test_a_window_under_one_block_is_searched_from_its_quarters_with_the_same_answers():
+    # A window that one block of a level covers is searched from that block's four quarters
+    # in the order its children are visited, rotations bounded on the covering level: the
+    # same answers as the search from the top level, ties included. Two posts the scanner's
+    # own point (the scan origin) fits equally well, one in the quarter of high x and low y,
+    # one in that of low x and high y: the order decides which is returned.
+    for steps in (3, 5, 6, 7, 9, 10, 11, 12, 13, 14, 15):
+        k = (steps - 1) * 0.1
+        center = np.array([10.0, 10.0, 0.3])
+        posts = np.array([[10.0 + k, 10.0 - k], [10.0 - k, 10.0 + k], [0.0, 0.0], [20.0, 20.0]])
+        grid = SearchGrid(posts, 0.1, 0.1, depth=5, max_window=2.0)
+        origin = np.zeros((1, 2))
+        got = search(grid, origin, center, steps * 0.1, math.radians(3))
+        want = _search_in_numpy(grid, origin, center, steps * 0.1, math.radians(3))
+        assert got.score == want.score == 1.0
+        np.testing.assert_array_equal(got.pose, want.pose)
+        np.testing.assert_allclose(got.pose[:2], posts[0], atol=1e-9)  # high x comes first
+    # And where poses do not tie: windows of the test room, answers and scores as the
+    # search from the top level has them.
+    world = _room()
+    grid = SearchGrid(world, 0.1, 0.1, depth=5, max_window=2.0)
+    rng = np.random.default_rng(17)
+    for steps in range(1, 17):
+        truth = np.array([rng.uniform(2, 10), rng.uniform(2, 6), rng.uniform(-3, 3)])
+        pts = _seen_from(world, truth, keep=int(rng.integers(30, 120)))
+        center = truth + [rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), 0.05]
+        floor = rng.uniform(0.0, 0.7)
+        got = search(grid, pts, center, steps * 0.1, math.radians(5), floor)
+        want = _search_in_numpy(grid, pts, center, steps * 0.1, math.radians(5), floor)
+        assert (got is None) == (want is None), steps
+        if got is not None:
+            np.testing.assert_array_equal(got.pose, want.pose)
+            assert got.score == want.score
+
+
 def test_the_compiled_score_is_the_mean_over_the_clamped_cells():
     grid = SearchGrid(_room(), 0.1, 0.1, depth=5, max_window=4.0)
     rng = np.random.default_rng(12)

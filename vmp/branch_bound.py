@@ -285,10 +285,7 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
     cells."""
     evaluated = 0
     n_rot = turns.shape[0]
-    cos = np.empty(n_rot)
-    sin = np.empty(n_rot)
-    top_level = _top_level(steps, depth)
-    corners = _corners(steps, top_level)
+    group_level, top_level, corners = _start(steps, depth)
     # Each rotation's points, placed at the window's centre: flat cell indices (R, M). Only
     # the groups' middle rotations at first: where no group can score ``min_score`` (most
     # windows of a search along the saved path), the others are never needed.
@@ -296,26 +293,24 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
     placed = np.zeros(n_rot, dtype=np.bool_)
     for k in range(centers.shape[0]):
         thetas = centers[k, 2] + turns
-        for r in range(n_rot):
-            cos[r] = math.cos(thetas[r])
-            sin[r] = math.sin(thetas[r])
         # Grouped per centre: the turn between rotations is taken from this centre's
         # headings, as the search always did (rounded so, a group may differ by one).
-        group, middle, h = _groups(thetas, reach, steps, depth, lo, 1 << top_level)
+        group, middle, h = _groups(thetas, reach, steps, group_level, lo, 1 << top_level)
         placed[:] = False
         for g in range(middle.shape[0]):
             placed[middle[g]] = True
-        _place(pts, centers[k, 0], centers[k, 1], cos, sin, ox, oy, res, lo, hi_x, hi_y,
-               stride, flat, placed)
-        alive, bounded = _groups_alive(levels, flat, scale, depth, min_score, stride,
+        _place(pts, centers[k, 0], centers[k, 1], thetas, ox, oy, res, lo, hi_x, hi_y, stride,
+               flat, placed)
+        alive, bounded = _groups_alive(levels, flat, scale, group_level, min_score, stride,
                                        corners, middle, h)
         evaluated += bounded
         if not alive.any():
             continue
+        # The other rotations of the groups that may score it; the rest are never scored.
         for r in range(n_rot):
-            placed[r] = not placed[r]
-        _place(pts, centers[k, 0], centers[k, 1], cos, sin, ox, oy, res, lo, hi_x, hi_y,
-               stride, flat, placed)
+            placed[r] = not placed[r] and alive[group[r]].any()
+        _place(pts, centers[k, 0], centers[k, 1], thetas, ox, oy, res, lo, hi_x, hi_y, stride,
+               flat, placed)
         score, r, x, y, n = _branch_and_bound(levels, flat, scale, steps, depth, min_score,
                                               stride, centers[k], thetas, res, ex_pose,
                                               ex_xy, ex_theta, top_level, corners, alive,
@@ -327,15 +322,16 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
 
 
 @kernel
-def _place(pts, x, y, cos, sin, ox, oy, res, lo, hi_x, hi_y, stride, out, rows
+def _place(pts, x, y, thetas, ox, oy, res, lo, hi_x, hi_y, stride, out, rows
            ):  # pragma: no cover - compiled
     """Into ``out`` (R, M), for each rotation ``r`` flagged in ``rows``: the flat cell indices
-    of ``pts`` placed at (x, y) and turned by the rotation of cosine ``cos[r]`` and sine
-    ``sin[r]``, clamped to :attr:`SearchGrid.bounds`."""
-    for r in range(cos.shape[0]):
+    of ``pts`` placed at (x, y) and turned by ``thetas[r]``, clamped to
+    :attr:`SearchGrid.bounds`. (Only the rotations flagged are turned: most windows of a
+    search along the saved path need a few of their 43.)"""
+    for r in range(thetas.shape[0]):
         if not rows[r]:
             continue
-        c, s = cos[r], sin[r]
+        c, s = math.cos(thetas[r]), math.sin(thetas[r])
         for k in range(pts.shape[0]):
             out[r, k] = (_cell(x + c * pts[k, 0] - s * pts[k, 1], ox, res, lo, hi_x) * stride
                          + _cell(y + s * pts[k, 0] + c * pts[k, 1], oy, res, lo, hi_y))
@@ -373,7 +369,7 @@ def _branch_and_bound(levels, flat, scale, steps, depth, min_score, stride, cent
     scored), rotation -1 when nothing scores ``min_score``. ``levels`` (depth + 1, cells) are
     the grid's levels flattened, ``flat`` (rotations, points) the points' cells at the
     window's centre, clamped no lower than the grid's bounds. The search starts on
-    ``top_level`` (:func:`_top_level`), at the ``corners`` (:func:`_corners`) whose
+    ``top_level``, at the ``corners`` (x, y; both from :func:`_start`) whose
     rotations' group (``group``, :func:`_groups`) ``alive`` says may score ``min_score``
     (:func:`_groups_alive`). Every level keeps the candidates that may still beat the best
     exact score, dives greedily from the best of them to set that score, and scores their
@@ -382,19 +378,17 @@ def _branch_and_bound(levels, flat, scale, steps, depth, min_score, stride, cent
     evaluated = 0
     n = 0
     for r in range(thetas.shape[0]):
-        for a in range(nc):
-            for b in range(nc):
-                n += alive[group[r], a, b]
+        for c in range(nc):
+            n += alive[group[r], c]
     rot = np.empty(n, dtype=np.int64)
     ox = np.empty(n, dtype=np.int64)
     oy = np.empty(n, dtype=np.int64)
     k = 0
     for r in range(thetas.shape[0]):
-        for a in range(nc):
-            for b in range(nc):
-                if alive[group[r], a, b]:
-                    rot[k], ox[k], oy[k] = r, corners[a], corners[b]
-                    k += 1
+        for c in range(nc):
+            if alive[group[r], c]:
+                rot[k], ox[k], oy[k] = r, corners[c, 0], corners[c, 1]
+                k += 1
     values = _scores(levels, top_level, flat, rot, ox, oy, n, scale, stride, center, thetas,
                      res, ex_pose, ex_xy, ex_theta)
     evaluated += n
@@ -443,22 +437,51 @@ def _top_level(steps, depth):  # pragma: no cover - compiled
 
 
 @kernel
-def _corners(steps, top_level):  # pragma: no cover - compiled
-    """The offsets (cells, either axis) of the top level's blocks over the window."""
-    return np.arange(-steps, steps + 1, 1 << top_level)
+def _start(steps, depth):  # pragma: no cover - compiled
+    """Where a window of ``steps`` cells either way is searched from: the level rotations
+    are grouped on (:func:`_groups_alive`), the level the search starts on and its
+    corners, the offsets (x, y; cells) of its blocks over the window, in the order the
+    search visits them.
+
+    Where one block of a level covers the window (:func:`_top_level`), the search starts a
+    level lower, on that block's four quarters in the order the level's children are
+    visited (the same answers, ties included), and rotations are grouped on the covering
+    level: its blocks of ``2^L`` cells bound a group over a quarter, where the stack's top
+    blocks, two or four times as wide, bounded it over the whole window. (The localizer's
+    search along the saved path, 13 cells a side: of the 4,420 windows searched while
+    ACES's second half was tracked, those whose groups all fall short rose from 1,817 to
+    2,600, the candidates scored fell from 437,025 to 342,375, and the searches took 66 ms
+    instead of 80; docs/benchmarks.md, thirty-sixth session.) A wider window is searched
+    from the stack's top level, whose blocks tile it, with rotations grouped there too
+    where its blocks are wider than the window."""
+    top_level = _top_level(steps, depth)
+    if top_level == 0 or (1 << top_level) < 2 * steps + 1:
+        tiles = np.arange(-steps, steps + 1, 1 << top_level)
+        corners = np.empty((tiles.shape[0] * tiles.shape[0], 2), dtype=np.int64)
+        for a in range(tiles.shape[0]):
+            for b in range(tiles.shape[0]):
+                corners[a * tiles.shape[0] + b, 0] = tiles[a]
+                corners[a * tiles.shape[0] + b, 1] = tiles[b]
+        return depth, top_level, corners
+    half = 1 << (top_level - 1)
+    corners = np.empty((4, 2), dtype=np.int64)
+    for c, (dx, dy) in enumerate(((0, 0), (half, 0), (0, half), (half, half))):
+        corners[c, 0] = -steps + dx
+        corners[c, 1] = -steps + dy
+    return top_level, top_level - 1, corners
 
 
 @kernel
-def _groups(thetas, reach, steps, depth, lo, top):  # pragma: no cover - compiled
-    """Groups of neighbouring rotations of ``thetas`` bounded together on the top level
+def _groups(thetas, reach, steps, group_level, lo, top):  # pragma: no cover - compiled
+    """Groups of neighbouring rotations of ``thetas`` bounded together on ``group_level``
     (:func:`_groups_alive`): each rotation's group, each group's middle rotation, and ``h``,
     the most cells a point of the group's rotations lies from where the middle one places
     it (``reach`` times the turn between them, plus one for the rounding); 0 where the
-    top level's block of ``2^depth`` cells set ``h`` cells back cannot hold the block of
+    level's block of ``2^group_level`` cells set ``h`` cells back cannot hold the block of
     ``top`` cells under a corner and ``2 h`` more, and each rotation is a group of its own."""
     n_rot = thetas.shape[0]
     span = min(top, 2 * steps + 1)  # cells of the window under one corner's block, at most
-    room = min(((1 << depth) - span) // 2, lo - steps)  # the widest h that fits
+    room = min(((1 << group_level) - span) // 2, lo - steps)  # the widest h that fits
     half = 0  # rotations each side of a group's middle
     turn = 0.0
     if n_rot > 1 and room >= 1:
@@ -477,33 +500,33 @@ def _groups(thetas, reach, steps, depth, lo, top):  # pragma: no cover - compile
 
 
 @kernel
-def _groups_alive(levels, flat, scale, depth, min_score, stride, corners, middle,
+def _groups_alive(levels, flat, scale, group_level, min_score, stride, corners, middle,
                   h):  # pragma: no cover - compiled
     """Which groups of rotations (:func:`_groups`; ``flat`` holds their middle rotations'
-    cells) may score ``min_score`` at each corner's block: (alive[group, a, b], bounds
-    scored). The top level's block set ``h`` cells back bounds every pose of the group in a
-    corner's block; all alive, nothing scored, where ``h`` is 0. (In the localizer's search
-    along the saved path, a window of 13 cells a side under blocks of 32, the 43 rotations
-    fall into 3 groups; in ACES's second half 1,980 of the 4,690 windows searched ended
-    there, and its path searches took 119 ms against 184; docs/benchmarks.md, thirtieth
-    session.)"""
+    cells) may score ``min_score`` at each corner's block: (alive[group, corner], bounds
+    scored). The block of ``group_level`` set ``h`` cells back bounds every pose of the
+    group in a corner's block; all alive, nothing scored, where ``h`` is 0. (In the
+    localizer's search along the saved path, a window of 13 cells a side, the 43 rotations
+    fell into 3 groups under the stack's top blocks of 32 cells; in ACES's second half
+    1,980 of the 4,690 windows searched ended there, and its path searches took 119 ms
+    against 184; docs/benchmarks.md, thirtieth session. Under blocks of 16 over its
+    quarters, 7 groups: :func:`_start`.)"""
     nc = corners.shape[0]
-    alive = np.ones((middle.shape[0], nc, nc), dtype=np.int64)
+    alive = np.ones((middle.shape[0], nc), dtype=np.int64)
     if h == 0:
         return alive, 0
-    level = levels[depth]
+    level = levels[group_level]
     evaluated = 0
     for g in range(middle.shape[0]):
         row = flat[middle[g]]
-        for a in range(nc):
-            for b in range(nc):
-                off = (corners[a] - h) * stride + corners[b] - h
-                total = 0
-                for i in range(row.shape[0]):
-                    total += level[row[i] + off]
-                evaluated += 1
-                if total / scale < min_score:
-                    alive[g, a, b] = 0
+        for c in range(nc):
+            off = (corners[c, 0] - h) * stride + corners[c, 1] - h
+            total = 0
+            for i in range(row.shape[0]):
+                total += level[row[i] + off]
+            evaluated += 1
+            if total / scale < min_score:
+                alive[g, c] = 0
     return alive, evaluated
 
 

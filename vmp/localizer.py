@@ -868,7 +868,6 @@ class Localizer:
         each costs a registration a scan."""
         trusted = self._trusted()
         keep: list[Hypothesis] = []
-        top = max((h.score for h in self.hypotheses), default=0.0)
 
         def rank(h: Hypothesis) -> tuple:
             # The place declared before it was lost is kept while it dead-reckons, however
@@ -880,7 +879,11 @@ class Localizer:
             return (-h.trusted, -h.declared, not _as_well(h.score, top),
                     min(_view_share(h), VIEW_MOST), -h.score)
 
-        for h in sorted(self.hypotheses, key=rank):
+        ranked = self.hypotheses
+        if len(ranked) > 1:  # (one place alone, as tracked, needs no ranking: 6 us a scan)
+            top = max(h.score for h in ranked)
+            ranked = sorted(ranked, key=rank)
+        for h in ranked:
             if h.misses > (DEAD_RECKONING if h.declared else DROP_AFTER):
                 continue
             if trusted is not None and h is not trusted and len(h.scores) == WINDOW:
