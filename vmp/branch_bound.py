@@ -446,14 +446,15 @@ def _start(steps, depth):  # pragma: no cover - compiled
     Where one block of a level covers the window (:func:`_top_level`), the search starts a
     level lower, on that block's four quarters in the order the level's children are
     visited (the same answers, ties included), and rotations are grouped on the covering
-    level: its blocks of ``2^L`` cells bound a group over a quarter, where the stack's top
-    blocks, two or four times as wide, bounded it over the whole window. (The localizer's
-    search along the saved path, 13 cells a side: of the 4,420 windows searched while
-    ACES's second half was tracked, those whose groups all fall short rose from 1,817 to
-    2,600, the candidates scored fell from 437,025 to 342,375, and the searches took 66 ms
-    instead of 80; docs/benchmarks.md, thirty-sixth session.) A wider window is searched
-    from the stack's top level, whose blocks tile it, with rotations grouped there too
-    where its blocks are wider than the window."""
+    level: each of its blocks bounds a group over a quarter of the window, tighter than a
+    block of the stack's top level over the whole window, as groups were bounded before
+    (where the window filled that block, there was no room to group rotations at all).
+    (The localizer's search along the saved path, 13 cells a side: of the 4,420 windows
+    searched while ACES's second half was tracked, those whose groups all fall short rose
+    from 1,817 to 2,600, the candidates scored fell from 437,025 to 342,375, and the
+    searches took 66 ms instead of 80; docs/benchmarks.md, thirty-sixth session.) A wider
+    window is searched from the stack's top level, whose blocks tile it, with rotations
+    grouped there too where its blocks are wider than the window."""
     top_level = _top_level(steps, depth)
     if top_level == 0 or (1 << top_level) < 2 * steps + 1:
         tiles = np.arange(-steps, steps + 1, 1 << top_level)
@@ -463,9 +464,9 @@ def _start(steps, depth):  # pragma: no cover - compiled
                 corners[a * tiles.shape[0] + b, 0] = tiles[a]
                 corners[a * tiles.shape[0] + b, 1] = tiles[b]
         return depth, top_level, corners
-    half = 1 << (top_level - 1)
+    side = 1 << (top_level - 1)  # of a quarter
     corners = np.empty((4, 2), dtype=np.int64)
-    for c, (dx, dy) in enumerate(((0, 0), (half, 0), (0, half), (half, half))):
+    for c, (dx, dy) in enumerate(((0, 0), (side, 0), (0, side), (side, side))):
         corners[c, 0] = -steps + dx
         corners[c, 1] = -steps + dy
     return top_level, top_level - 1, corners
