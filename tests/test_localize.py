@@ -21,7 +21,7 @@ from vmp.mapfile import MapData
 from vmp.places import PATH_STEP, Places, samples_along
 from vmp.source import FrameList, Reference
 from vmp.tum import read_tum
-from vmp.types import relative, rotate_covariance
+from vmp.types import compose, relative, rotate_covariance
 
 WITHIN = 30  # scans to localize in, after a start or a kidnap (issue 14)
 
@@ -628,6 +628,25 @@ def test_the_whole_map_is_not_searched_while_a_place_followed_explains_the_scan(
     _followed(loc, pose, [1.0] * localizer.WINDOW)
     loc._anywhere()
     assert calls == []
+
+
+def test_a_place_the_whole_map_explains_the_scan_clearly_better_than_is_not_declared(
+        monkeypatch):
+    """Before a place is declared, the whole map is searched for a pose that explains the
+    scan clearly better: one found (the right place, where no milestone proposed it) is
+    followed, and the place waits. Searched once from here; never where the place explains
+    the scan fully, as nothing could do better."""
+    loc, pose = _lab_localizer()
+    wrong = _followed(loc, compose(pose, np.array([1.5, -1.0, 0.6])), [0.9] * localizer.WINDOW)
+    assert loc._bettered(wrong)
+    assert any(np.hypot(*(h.pose[:2] - pose[:2])) < 0.2 for h in loc.hypotheses if h is not wrong)
+    assert loc.stats["searches of the whole map before a place is declared"] == 1
+    calls = []
+    monkeypatch.setattr(Places, "everywhere", lambda *args, **kwargs: calls.append(1))
+    assert not loc._bettered(wrong) and calls == []  # not moved since: not searched again
+    right_loc, right_pose = _lab_localizer()
+    right = _followed(right_loc, right_pose, [1.0] * localizer.WINDOW)
+    assert not right_loc._bettered(right) and calls == []
 
 
 def test_once_lost_the_robot_is_looked_for_where_odometry_carried_it(monkeypatch):
