@@ -1200,9 +1200,9 @@ class Localizer:
 
     def _bettered(self, best: Hypothesis) -> bool:
         """Whether a pose anywhere in the map explains this scan clearly better than ``best``
-        and every other place followed (:meth:`_anywhere`), now followed too. Searched once
-        before ``best`` is declared, and again only once the robot has moved since
-        (:meth:`_moved_since`).
+        (searched as :meth:`_anywhere` searches), now followed, with a pose about as good
+        elsewhere if there is one. Searched once before ``best`` is declared, and again only
+        once the robot has moved since (:meth:`_moved_since`).
 
         The signatures propose only places with a milestone near, and the whole map is
         searched only while they propose none: on ACES's cut at 0.625 a look-alike they
