@@ -427,13 +427,13 @@ def _branch_and_bound(levels, flat, scale, steps, depth, min_score, stride, cent
 
 
 @kernel
-def _top_level(steps, depth):  # pragma: no cover - compiled
-    """The coarsest level a window of ``steps`` cells either way is searched from: the first
-    whose blocks cover the window (the levels above it bound nothing tighter)."""
-    top_level = 0
-    while top_level < depth and (1 << top_level) < 2 * steps + 1:
-        top_level += 1
-    return top_level
+def _covering_level(steps, depth):  # pragma: no cover - compiled
+    """The first level whose blocks cover a window of ``steps`` cells either way (the levels
+    above it bound nothing tighter); the stack's top, ``depth``, where none does."""
+    level = 0
+    while level < depth and (1 << level) < 2 * steps + 1:
+        level += 1
+    return level
 
 
 @kernel
@@ -443,7 +443,7 @@ def _start(steps, depth):  # pragma: no cover - compiled
     corners, the offsets (x, y; cells) of its blocks over the window, in the order the
     search visits them.
 
-    Where one block of a level covers the window (:func:`_top_level`), the search starts a
+    Where one block of a level covers the window (:func:`_covering_level`), the search starts a
     level lower, on that block's four quarters in the order the level's children are
     visited (the same answers, ties included), and rotations are grouped on the covering
     level: each of its blocks bounds a group over a quarter of the window, tighter than a
@@ -455,21 +455,21 @@ def _start(steps, depth):  # pragma: no cover - compiled
     searches took 66 ms instead of 80; docs/benchmarks.md, thirty-sixth session.) A wider
     window is searched from the stack's top level, whose blocks tile it, with rotations
     grouped there too where its blocks are wider than the window."""
-    top_level = _top_level(steps, depth)
-    if top_level == 0 or (1 << top_level) < 2 * steps + 1:
-        tiles = np.arange(-steps, steps + 1, 1 << top_level)
+    covering = _covering_level(steps, depth)
+    if covering == 0 or (1 << covering) < 2 * steps + 1:
+        tiles = np.arange(-steps, steps + 1, 1 << covering)
         corners = np.empty((tiles.shape[0] * tiles.shape[0], 2), dtype=np.int64)
         for a in range(tiles.shape[0]):
             for b in range(tiles.shape[0]):
                 corners[a * tiles.shape[0] + b, 0] = tiles[a]
                 corners[a * tiles.shape[0] + b, 1] = tiles[b]
-        return depth, top_level, corners
-    side = 1 << (top_level - 1)  # of a quarter
+        return depth, covering, corners
+    side = 1 << (covering - 1)  # of a quarter
     corners = np.empty((4, 2), dtype=np.int64)
     for c, (dx, dy) in enumerate(((0, 0), (side, 0), (0, side), (side, side))):
         corners[c, 0] = -steps + dx
         corners[c, 1] = -steps + dy
-    return top_level, top_level - 1, corners
+    return covering, covering - 1, corners
 
 
 @kernel

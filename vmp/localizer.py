@@ -557,11 +557,9 @@ class Localizer:
         if least >= 1.0:
             return
         self.stats[f"searches {searched}"] += 1
-        best = find(least, None)
-        if best is None:
-            return
-        other = find(_least_as_well(best.score), (best.pose.reshape(1, 3), *ANYWHERE_APART))
-        if other is not None and _as_well(other.score, best.score, GRID_MARGIN):
+        best, other = _best_and_alike(find, least)
+        if best is None or (other is not None and _as_well(other.score, best.score,
+                                                             GRID_MARGIN)):
             return
         self.stats[f"places found {found}"] += 1
         self._follow(self._registered(best.pose))
@@ -1221,17 +1219,13 @@ class Localizer:
         if least >= 1.0:
             return False
         self.stats["searches of the whole map before a place is declared"] += 1
-        found = self.places.everywhere(live, least)
-        if found is None:
-            return False
-        # Followed, and a pose about as good elsewhere too (ACES's flipped corridor), to be
-        # compared with the best over the scans to come.
-        self._follow(self._registered(found.pose))
-        other = self.places.everywhere(live, _least_as_well(found.score),
-                                       (found.pose.reshape(1, 3), *ANYWHERE_APART))
-        if other is not None:
-            self._follow(self._registered(other.pose))
-        return True
+        found, other = _best_and_alike(
+            lambda floor, exclude: self.places.everywhere(live, floor, exclude), least)
+        # Followed, with a pose about as good elsewhere too (ACES's corridor facing the other
+        # way), to be compared with the best over the scans to come.
+        for pose in [m.pose for m in (found, other) if m is not None]:
+            self._follow(self._registered(pose))
+        return found is not None
 
     def _along_path(self, pose: FloatArray, least: Callable[[float], float], live: FloatArray,
                     known: list[FloatArray]) -> Match | None:
@@ -1302,6 +1296,17 @@ class Localizer:
         self.hypotheses = [best]
         self.stats[count] += 1
         return State.LOCALIZED
+
+
+def _best_and_alike(find: Callable[[float, tuple | None], Match | None], least: float
+                    ) -> tuple[Match | None, Match | None]:
+    """The pose ``find(least, None)`` returns, and the best pose ``find`` returns farther than
+    :data:`ANYWHERE_APART` from it that scores about as well (:func:`_least_as_well`); None
+    for either where there is none."""
+    best = find(least, None)
+    if best is None:
+        return None, None
+    return best, find(_least_as_well(best.score), (best.pose.reshape(1, 3), *ANYWHERE_APART))
 
 
 def _proposal_covariance(pose: FloatArray) -> FloatArray:
