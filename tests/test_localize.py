@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from drivers import open_source
 from drivers.splice import carried
 from vmp import localizer
 from vmp.branch_bound import Match, search_points
+from vmp.config import MappingConfig, ScanOdometryConfig
 from vmp.errors import InputError
 from vmp.localization import LocalizationRun, open_saved_map
 from vmp.localizer import LOST_AFTER, State
@@ -700,3 +702,41 @@ def test_a_place_declared_sure_of_a_pose_the_scan_fits_clearly_worse_is_moved(of
     assert near == (moved or not any(offset))
     count = "places moved where the scan fits clearly better, outside their gate"
     assert loc.stats[count] == (1 if moved else 0)
+
+
+@pytest.mark.parametrize("keyframe_distance", [0.3, 0.8])
+def test_a_place_trusted_is_registered_against_the_map_once_a_keyframes_span(
+        monkeypatch, keyframe_distance):
+    # Scan odometry carries the place trusted within a keyframe's span; the map registers it
+    # once it has moved or turned as far as that, whatever the span is set to. A place
+    # followed, not yet trusted, is registered at every scan it moved.
+    keyframes = replace(ScanOdometryConfig(), keyframe_distance=keyframe_distance)
+    config = replace(MappingConfig(), scan_odometry=keyframes)
+    registered: dict[int, list[np.ndarray]] = {}
+    track = localizer.Localizer._track
+
+    def spied(self, h):
+        before = h.registered_at
+        score = track(self, h)
+        if h.trusted and h.registered_at is not before:
+            registered.setdefault(id(h), []).append(h.registered_at.copy())
+        return score
+
+    monkeypatch.setattr(localizer.Localizer, "_track", spied)
+    frames, truth = _run("lab", 5)
+    a, n = 400, 200
+    ref = Reference(np.asarray(truth[a:a + n]), "ground truth", True)
+    res = LocalizationRun(_saved("lab"), FrameList(frames[a:a + n], "lab", ref),
+                          config).run()
+    loc = res.localized
+    assert loc[WITHIN:].mean() > 0.9
+    assert float(np.sqrt(np.mean(res.errors()[loc] ** 2))) < 0.1
+    steps = [relative(p, q) for poses in registered.values()
+             for p, q in pairwise(poses)]
+    assert len(steps) >= 5
+    for step in steps:
+        assert (np.hypot(step[0], step[1]) >= keyframe_distance
+                or abs(step[2]) >= keyframes.keyframe_turn)
+    # The span set: the robot drives about as far between registrations, not far more.
+    driven = np.median([np.hypot(s[0], s[1]) for s in steps])
+    assert driven < 2 * keyframe_distance

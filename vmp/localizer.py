@@ -143,15 +143,6 @@ DROP_AFTER = 3  # misses in a row after which an untrusted hypothesis is dropped
 DEAD_RECKONING = 100  # misses in a row after which a trusted one is dropped too
 RETRY_XY = 0.5  # a milestone searched is searched again once the robot moved this far (m) ...
 RETRY_THETA = math.radians(10.0)  # ... or turned this much
-# The place trusted is registered against the map once the robot has moved this far (m) or
-# turned this much since its last registration; in between, scan odometry carries it (over a
-# decimetre it errs by millimetres) and each scan is scored where it is predicted, so that a
-# kidnap is noticed as before. Registrations of nearly the same view against the same map share
-# the map's own local error: registering every 2 cm, 0.1 m or 0.25 m gave the same relation
-# errors on the Intel part, ACES and fr079 (docs/benchmarks.md), and a registration costs three
-# times what scan odometry does (a map of 13,000 points and more against a scan's 180).
-TRACK_EVERY_XY = 0.1
-TRACK_EVERY_THETA = math.radians(5.0)
 SAME_XY = 0.3  # a proposal this near a hypothesis (m) ...
 SAME_THETA = math.radians(5.0)  # ... and turned this little agrees with it
 # Searches made while the place trusted is doubted before its reference score is lowered to
@@ -371,6 +362,21 @@ class Localizer:
         # where its steps cycle (126 of 1,535 on ACES's tracked half ran to the cap, 27 % of
         # that ICP's time; docs/benchmarks.md, nineteenth session) or no longer change the fit.
         self.front = FrontEnd(self.config, filtered=False, stops_early=True)
+        # The place trusted is registered against the map once it has moved or turned as far
+        # as scan odometry goes before it takes a new keyframe (0.3 m or 10 deg by default);
+        # in between, scan odometry carries it and each scan is scored where it is
+        # predicted, so that a kidnap is noticed as before. Within a keyframe's span scan
+        # odometry registers each scan against that one keyframe, so its error does not
+        # build up scan by scan, and registrations of nearly the same view against the same
+        # map share the map's own local error. (Every 0.1 m or 5 deg, as before, a third of
+        # ACES's tracked time went to registering against the map, 190 us a registration
+        # against scan odometry's 90; docs/benchmarks.md, thirty-seventh session.) Without
+        # scan odometry the wheels alone carry it: it is registered whenever it moved
+        # (:func:`vmp.frontend.new_view`).
+        keyframes = self.config.scan_odometry
+        self._track_every: tuple[float, ...] = (
+            (keyframes.keyframe_distance, keyframes.keyframe_turn) if keyframes.enabled
+            else ())
         self.stats: Counter[str] = Counter()
         self.hypotheses: list[Hypothesis] = []
         self.scan = -1
@@ -690,9 +696,9 @@ class Localizer:
             h.record(0.0, NO_VIEW)
             return None
         update = False
-        # A place trusted is registered every TRACK_EVERY; one followed, whenever the robot
-        # does not stand still.
-        every = (TRACK_EVERY_XY, TRACK_EVERY_THETA) if h.trusted else ()
+        # A place trusted is registered once a keyframe's span (``_track_every``); one
+        # followed, whenever the robot does not stand still.
+        every = self._track_every if h.trusted else ()
         if new_view(h.registered_at, h.pose, *every):
             h.registered_at = h.pose.copy()
             # Lines only: in a map assembled from many scans and thinned to 5 cm, the walls
