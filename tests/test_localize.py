@@ -708,8 +708,7 @@ def test_a_place_declared_sure_of_a_pose_the_scan_fits_clearly_worse_is_moved(of
 def test_a_place_trusted_is_registered_against_the_map_once_a_keyframes_span(
         monkeypatch, keyframe_distance):
     # Scan odometry carries the place trusted within a keyframe's span; the map registers it
-    # once it has moved or turned as far as that, whatever the span is set to. A place
-    # followed, not yet trusted, is registered at every scan it moved.
+    # once it has moved or turned as far as that, whatever the span is set to.
     keyframes = replace(ScanOdometryConfig(), keyframe_distance=keyframe_distance)
     config = replace(MappingConfig(), scan_odometry=keyframes)
     registered: dict[int, list[np.ndarray]] = {}
