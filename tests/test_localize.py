@@ -17,6 +17,7 @@ from vmp import localizer
 from vmp.branch_bound import Match, search_points
 from vmp.config import MappingConfig, ScanOdometryConfig
 from vmp.errors import InputError
+from vmp.frontend import NEW_VIEW_THETA, NEW_VIEW_XY
 from vmp.localization import LocalizationRun, open_saved_map
 from vmp.localizer import LOST_AFTER, State
 from vmp.mapfile import MapData
@@ -704,12 +705,14 @@ def test_a_place_declared_sure_of_a_pose_the_scan_fits_clearly_worse_is_moved(of
     assert loc.stats[count] == (1 if moved else 0)
 
 
-@pytest.mark.parametrize("keyframe_distance", [0.3, 0.8])
+@pytest.mark.parametrize("keyframe_distance", [0.3, 0.8, None])
 def test_a_place_trusted_is_registered_against_the_map_once_a_keyframes_span(
         monkeypatch, keyframe_distance):
     # Scan odometry carries the place trusted within a keyframe's span; the map registers it
-    # once it has moved or turned as far as that, whatever the span is set to.
-    keyframes = replace(ScanOdometryConfig(), keyframe_distance=keyframe_distance)
+    # once it has moved or turned as far as that, whatever the span is set to. Without scan
+    # odometry (None), the wheels alone carry it, and it is registered whenever it moved.
+    keyframes = (replace(ScanOdometryConfig(), enabled=False) if keyframe_distance is None
+                 else replace(ScanOdometryConfig(), keyframe_distance=keyframe_distance))
     config = replace(MappingConfig(), scan_odometry=keyframes)
     registered: dict[int, list[np.ndarray]] = {}
     track = localizer.Localizer._track
@@ -733,9 +736,10 @@ def test_a_place_trusted_is_registered_against_the_map_once_a_keyframes_span(
     steps = [relative(p, q) for poses in registered.values()
              for p, q in pairwise(poses)]
     assert len(steps) >= 5
+    least_xy, least_turn = ((NEW_VIEW_XY, NEW_VIEW_THETA) if keyframe_distance is None
+                            else (keyframe_distance, keyframes.keyframe_turn))
     for step in steps:
-        assert (np.hypot(step[0], step[1]) >= keyframe_distance
-                or abs(step[2]) >= keyframes.keyframe_turn)
-    # The span set: the robot drives about as far between registrations, not far more.
+        assert np.hypot(step[0], step[1]) >= least_xy or abs(step[2]) >= least_turn
+    # As often as that: the robot drives about as far between registrations, not far more.
     driven = np.median([np.hypot(s[0], s[1]) for s in steps])
-    assert driven < 2 * keyframe_distance
+    assert driven < (0.1 if keyframe_distance is None else 2 * keyframe_distance)
