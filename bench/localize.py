@@ -30,7 +30,7 @@ the places declared farther than 0.5 m from where the whole log mapped in one go
 (its pose carried into the cut map's frame at the map's scan nearest the declared place): the
 real logs' wrong fixes, as far as one go's poses tell. (Started a few scans late, ``--offsets``,
 the runs fall back onto a few shared paths of decisions: ACES started 36, 40 and 44 scans late
-was localized on 39.4 % of its scans each time; docs/benchmarks.md, twenty-first session.)
+is localized on 39.4 % of its scans each time.)
 
 Writes the tables into docs/benchmarks.md (the simulated one when all four scenarios ran 20
 runs, the real one when every log ran).
@@ -239,8 +239,8 @@ def speed_rounds(name: str, frames: list, half: int, first_map: MapData,
                  rounds: int) -> list[tuple[float, float]]:
     """``rounds`` more (mapping, tracking) rates in scans per second, in turn: the whole log
     mapped, then its second half localized in its first half's saved map. (One run's ratio
-    says little on a shared machine: this one's mapping of ACES swung between 776 and 959
-    scans a second in one session; docs/benchmarks.md, eighteenth session.)"""
+    says little on a shared machine: its mapping of ACES may swing between 776 and 959
+    scans a second from one run to the next.)"""
     out = []
     for _ in range(rounds):
         mapped = whole(MappingRun(FrameList(frames, name)).run())
@@ -255,8 +255,7 @@ def late_starts(name: str, frames: list, half: int, first_map: MapData, full: Re
     """The second half localized again, started each of ``offsets`` scans late: (offset,
     share of scans localized, relation error of the localized scans less one go's on the same
     relations). One run's share is one draw: started 4 scans late, the Intel part's second
-    half was localized on 50.6 % of its scans against 75.4 % (docs/benchmarks.md, twentieth
-    session)."""
+    half is localized on 50.6 % of its scans against 75.4 % started on time."""
     out = []
     for k in offsets:
         res = whole(LocalizationRun(first_map, FrameList(frames[half + k:], name)).run())

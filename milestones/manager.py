@@ -466,7 +466,7 @@ class MilestoneManager:
     @classmethod
     def from_state(cls, state: dict) -> MilestoneManager:
         """The inverse of :meth:`state`."""
-        # Files written before a setting became a constant still name it: ignore such keys.
+        # A file may name a setting that is a constant, not a field: ignore such keys.
         known = {f.name for f in fields(ManagerConfig)}
         config = ManagerConfig(**{k: v for k, v in state["config"].items() if k in known})
         mgr = cls(config)

@@ -132,7 +132,7 @@ def test_the_search_is_independent_of_where_the_points_lie():
 
 def _likelihood_by_distance_transform(points, resolution, sigma, pad):
     """The likelihood grid as a Euclidean distance transform of the whole grid gives it
-    (how it was computed before the cells were stamped)."""
+    (the spec the stamped cells must match)."""
     from scipy.ndimage import distance_transform_edt
 
     margin = math.ceil(3.0 * sigma / resolution) + 1
@@ -164,7 +164,7 @@ def test_the_stamped_likelihood_is_the_distance_transforms(resolution, sigma, pa
 def test_a_block_maximum_is_numpys():
     from vmp.branch_bound import _block_max
 
-    def in_numpy(grid, step):  # as it was written before it was compiled
+    def in_numpy(grid, step):  # the spec the compiled one must match
         out = grid.copy()
         out[:-step, :] = np.maximum(out[:-step, :], grid[step:, :])
         shifted = out.copy()
@@ -183,7 +183,7 @@ def test_a_block_maximum_is_numpys():
         np.testing.assert_array_equal(out, in_numpy(grid, step))
 
 
-# ---- the search as NumPy did it, before it was compiled: the compiled one must agree ------
+# ---- the search in NumPy, the spec: the compiled one must agree ---------------------------
 
 def _search_in_numpy(grid, points, center, window_xy, window_theta, min_score=0.0,
                      exclude=None):
@@ -299,7 +299,7 @@ def test_rotations_bounded_in_groups_keep_every_answer():
     # The localizer's search along a saved path: a window of 0.6 m and 10 degrees about each
     # of many centres, a floor near the right place's score. Rotations bounded in groups
     # (and the search started at the level that covers the window) must find what the
-    # search of every rotation did, centre by centre, where it finds a pose and where not.
+    # search of every rotation finds, centre by centre, where it finds a pose and where not.
     world = _room()
     rng = np.random.default_rng(13)
     grid = SearchGrid(world, 0.1, 0.1, depth=5, max_window=4.0)

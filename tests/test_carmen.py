@@ -53,7 +53,7 @@ def test_round_trip_keeps_ranges_poses_and_no_returns(tmp_path):
 
 def test_scans_sharing_a_stamp_keep_each_its_own_odometry(tmp_path):
     # A live run stamps the scans that arrive in one read alike, each with the odometry the
-    # pose feed gave it; its replay must see the same (it used to take the first one's).
+    # pose feed gave it; its replay must see the same (not the first one's for all).
     frames = list(Simulator(load_scenario("office"), max_scans=80))
     frames[40:43] = [dataclasses.replace(f, stamp=frames[40].stamp) for f in frames[40:43]]
     out = tmp_path / "live.clf"

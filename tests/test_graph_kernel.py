@@ -1,5 +1,5 @@
-"""The compiled edge terms of the pose graph (vmp.graph_kernel) against the NumPy expressions
-they replaced."""
+"""The compiled edge terms of the pose graph (vmp.graph_kernel) against the same terms as NumPy
+expressions."""
 
 import numpy as np
 

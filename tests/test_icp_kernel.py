@@ -103,7 +103,7 @@ def test_a_sparse_references_hash_table_gives_the_rows_the_binary_search_does():
 
 
 def _numpy_icp(reference, pts, initial, corners, cycles=False, settle=0.0):
-    """The ICP loop as it was written in NumPy before it was compiled (the spec); with
+    """The ICP loop in NumPy, the spec the compiled one must match; with
     ``cycles``, stopped where a step returns to within the tolerance of where one of the
     last :data:`CYCLE` steps started; with ``settle``, where a step changes the matched
     points' residuals by less than ``settle`` (weighted RMS, to first order)."""
@@ -299,8 +299,8 @@ def test_the_fits_covariance_is_the_numpy_one():
 
 @pytest.mark.parametrize("spread", [0.3, 1.2])  # the default, and wider than a cell
 def test_point_normals_are_the_k_d_trees(spread):
-    """Normals and kinds of reference points as they were computed from a k-d tree's five
-    nearest neighbours."""
+    """Normals and kinds of reference points as a k-d tree's five nearest neighbours give
+    them."""
     from vmp.icp_kernel import point_normals
     from vmp.registration import NEIGHBOURS
     rng = np.random.default_rng(2)

@@ -313,8 +313,8 @@ def tally(dev: RplidarDevice, frames: list) -> dict:
 def run_to_end(dev: RplidarDevice, drv: RplidarDriver, timeout: float = 8.0) -> dict:
     with dev, Session(drv) as s:
         s.wait(dev.finished.is_set, timeout, "the end of the scenario")
-        # The last turns in flight: until no frame arrived for 0.15 s (a fixed 0.15 s lost
-        # the last intact turn once under a loaded machine: 20 of 21 delivered).
+        # The last turns in flight: until no frame arrived for 0.15 s (a fixed 0.15 s may lose
+        # the last intact turn on a loaded machine: 20 of 21 delivered).
         seen, deadline = -1, time.monotonic() + 3.0
         while len(s.frames) != seen and time.monotonic() < deadline:
             seen = len(s.frames)
@@ -351,9 +351,8 @@ def test_corrupted_session_measures_what_gets_through():
     assert t["intact"] >= 15 and t["corrupted"] >= 80
     assert t["intact_delivered"] >= 0.99 * t["intact"]
     # No checksum: single flips in distance bits pass. The share is a rate, not a constant:
-    # bench/serial_integrity.py measures 185 of 1,028 corrupted turns (18 %). This session
-    # gave 16-31 of ~121 over 16 runs while the wire's damage followed the host's reads;
-    # each turn's damage is drawn for it alone now, and it gives 16 of 123 in every run.
+    # bench/serial_integrity.py measures 185 of 1,028 corrupted turns (18 %). Each turn's
+    # damage is drawn for it alone, and this session gives 16 of 123 in every run.
     assert t["wrong"] <= 0.25 * t["corrupted"]
     # never a garbled turn: a few beams, one per node whose distance bits were hit (or that
     # was lost where a near point's parallax allowance covers the gap)

@@ -76,7 +76,7 @@ def tally(dev: PtyDevice, frames: list, key: Callable, sent_key: Callable = byte
 def wait_delivered(session: Session, dev: PtyDevice, key: Callable, sent_key: Callable = bytes,
               upto: int | None = None, timeout: float = 5.0) -> None:
     """Wait until every intact scan sent has been delivered, or ``timeout`` (the test's tally
-    then says what is missing). A fixed pause was too short on a loaded machine."""
+    then says what is missing). A fixed pause can be too short on a loaded machine."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         intact, got, _ = tally(dev, session.frames, key, sent_key, upto)
@@ -243,8 +243,8 @@ def test_a_missing_node_is_still_refused_where_the_distance_is_smooth():
 
 
 def test_a_lost_or_extra_byte_near_the_end_of_a_turn_never_costs_the_next_turn():
-    # The decoder used to stay locked on the shifted bytes into the next turn and eat its
-    # start node; it now checks angles, and re-reads the node before a lock break.
+    # The decoder must not stay locked on the shifted bytes into the next turn and eat its
+    # start node: it checks angles, and re-reads the node before a lock break.
     for seed in range(3):
         t = [turn(seed=3 * seed + k) for k in range(3)]
         a, b, c = (wire(*x) for x in t)
@@ -269,7 +269,7 @@ def test_a_corrupted_start_node_of_the_next_turn_does_not_cost_this_turn():
 def test_a_damaged_start_node_never_costs_a_turn_that_ends_without_returns():
     # The turn's last nodes have no return; the next turn's head is hit as the simulated wire
     # hits it (a flipped bit, a lost byte, a burst of 8 random bytes). Cut back to one
-    # revolution, the turn used to end at its last return and then fail its own wrap step.
+    # revolution, the turn must not end at its last return and then fail its own wrap step.
     rng = np.random.default_rng(0)
     for seed in range(3):
         t = [turn(seed=3 * seed + k) for k in range(3)]

@@ -20,7 +20,7 @@ def test_a_second_session_no_search_tied_is_tied_to_the_saved_map_at_the_end(mon
     frames, truth = list(sim)[:1500], sim.reference().poses
     # The second session drifts on scan odometry alone: no match, no loop search while it
     # runs; only the localizer's fix joins it to the saved map. (Without the search at the
-    # end its poses were 0.47 m off the world's (median), 0.78 m at worst.)
+    # end its poses are 0.47 m off the world's (median), 0.78 m at worst.)
     monkeypatch.setattr(pipeline_module.Pipeline, "match", lambda self, frame: [])
     second = MappingRun(FrameList(frames, "warehouse"), saved=saved).run()
     metrics = second.metrics()

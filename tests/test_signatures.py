@@ -182,7 +182,7 @@ def test_overlap_sums_equal_the_literal_loops():
 
 
 def _best_in_numpy(curve):
-    """The heading search's pick as NumPy wrote it before it was compiled."""
+    """The heading search's pick in NumPy, the spec the compiled one must match."""
     i = np.argmin(curve, axis=1)
     rows = np.arange(len(curve))
     inner = (i > 0) & (i < curve.shape[1] - 1)

@@ -384,8 +384,9 @@ def test_scans_neither_place_explains_are_left_out_of_their_comparison():
 
 def test_a_look_alike_found_later_is_told_apart_by_the_scans_before_it():
     """The simulated warehouse, seed 110, started at scan 1374: a look-alike found a few scans
-    after the right place scored alike on every scan since, and the start was declared after
-    52 scans. Compared over the scans before it too, within the bench's 30 (after 6)."""
+    after the right place scores alike on every scan since, and compared over those alone the
+    start would be declared after 52 scans. Compared over the scans before it too, within the
+    bench's 30 (after 6)."""
     r = mapped("warehouse")
     places = Places(r.pipeline.map, r.pipeline.milestones, r.trajectory)
     sim = open_source("warehouse", seed=110)
@@ -415,8 +416,8 @@ def test_a_trusted_place_is_outdone_over_the_scans_since_the_robot_may_have_been
 
 
 def test_the_localizers_scan_odometry_stops_where_its_icp_cycles_and_a_mappers_does_not():
-    """Tracking's keyframe ICP stops at a cycle (vmp.icp_kernel.CYCLE): 8 % of ACES's ran to
-    the cap. A mapper's runs on: its maps depend on which pose of a cycle ICP ends on."""
+    """Tracking's keyframe ICP stops at a cycle (vmp.icp_kernel.CYCLE): else 8 % of ACES's run
+    to the cap. A mapper's runs on: its maps depend on which pose of a cycle ICP ends on."""
     from vmp.frontend import FrontEnd
 
     assert Localizer(places=_NoLookAlikes()).front.scan_odometry.stops_early
@@ -445,7 +446,7 @@ def test_a_place_found_again_tells_a_look_alike_apart_over_the_scans_it_fitted_s
     """A place declared, lost and fitting again for 5 scans: a look-alike that explains this
     scan as well but not the scans before it is told apart over those 5 (its misses while
     lost are left out: the robot may have been carried then). Never told apart so, the Intel
-    part's second half started 4 scans late stayed ambiguous for 544 scans."""
+    part's second half started 4 scans late would stay ambiguous for 544 scans."""
     monkeypatch.setattr(localizer_module, "register", lambda *a, **k: None)
     loc = Localizer(places=_TwoSpots())
     loc._within, loc._ranges = np.ones((10, 2)), np.full(10, np.inf)  # this scan's

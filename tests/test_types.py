@@ -170,7 +170,7 @@ def _sampled_covariance(f, samples):
 
 def test_compose_and_inverse_covariances_match_sampling():
     """First-order propagation agrees with the spread of sampled poses (small noise), and a
-    spread along one frame's x turns with the heading: what was a bug in the handover edge."""
+    spread along one frame's x turns with the heading (as the handover edge needs it)."""
     rng = np.random.default_rng(3)
     a, b = np.array([2.0, -1.0, 1.1]), np.array([1.5, 0.4, -0.7])
     cov_a = np.diag([0.02, 0.01, 0.004]) ** 2

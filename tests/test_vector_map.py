@@ -86,8 +86,8 @@ def test_spread_bends_the_scans_since_the_last_correction():
 
 
 def test_spread_over_one_scan_gives_it_the_whole_correction():
-    """Corrected on consecutive scans, the block is the last scan alone: it must move (it
-    stayed where it was, a one-scan jump in the trajectory, before)."""
+    """Corrected on consecutive scans, the block is the last scan alone: it must move (left
+    where it is, it would make a one-scan jump in the trajectory)."""
     vm = VectorMap(SICK)
     vm.new_segment(0)
     for x in np.arange(3):

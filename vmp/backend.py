@@ -11,7 +11,7 @@ graph has it adjusted (sparse least squares, :mod:`vmp.pose_graph`); the milesto
 their segments with them. Every milestone keeps its covariance in the map frame, which gates
 how far a return to it may disagree with the prediction.
 
-Handing over to old milestones had kept ACES and fr079 far off on the Kuemmerle logs
+Handing over to old milestones keeps ACES and fr079 far off on the Kuemmerle logs
 (``python bench/kummerle.py``; figures in docs/benchmarks.md).
 """
 
@@ -46,10 +46,10 @@ __all__ = ["BackEnd", "corrections_agree", "fuse"]
 
 # A loop the search found joins the graph when another found at most this many milestones
 # later corrects the robot's pose the same way, within this distance and turn. (Four, not
-# three: merging ACES's halves, two finds four milestones and 4.1 m apart agreed on a 2.7 m
-# correction to a few centimetres, the searches between them refining poorly, and the loop
-# between the sessions stayed open: 0.0476 m against 0.0355 in one go, now 0.0360; the Intel
-# part, ACES, the simulated worlds as before, fr079 0.0496 -> 0.0494 m; docs/benchmarks.md.)
+# three: merging ACES's halves, two finds four milestones and 4.1 m apart agree on a 2.7 m
+# correction to a few centimetres, the searches between them refining poorly; with three the
+# loop between the sessions stays open, 0.0476 m against 0.0355 in one go and 0.0360 with
+# four.)
 CONFIRM_WITHIN = 4
 CONFIRM_XY = 0.3
 CONFIRM_THETA = math.radians(3.0)
@@ -162,7 +162,7 @@ class BackEnd:
         edge at a time): in the anchor's frame each edge adds its covariance turned to its
         frame and swung about its node by the heading's doubt (by the lever from the node to
         the robot); the sums from the anchor back, turned into each milestone's frame, are
-        the answers. One edge at a time in Python took 2.97 s of fr079's 80 s."""
+        the answers. One edge at a time in Python would take 2.97 s of fr079's 80 s."""
         parents = self._record_edges()
         rel, cov = self.robot_in_anchor(pose)
         chain, z, z_cov = [self.anchor], [], []

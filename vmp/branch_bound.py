@@ -11,8 +11,9 @@ log of the window's area rather than with the area.
 
 The descent goes level by level rather than depth first as in the papers: all surviving
 candidates of a level are scored together, after a greedy dive from the best of them has set
-the bound (the order it was first written in for NumPy; compiled now, it keeps the answers,
-ties included, and a search costs 0.9 ms instead of 1.4 on the test room's windows).
+the bound (an order that suits NumPy's arrays: the compiled search keeps it, so that its
+answers, ties included, are those of the NumPy search kept in the tests; a search costs 0.9 ms
+on the test room's windows, the NumPy one 1.4).
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ def likelihood_grid(points: FloatArray, resolution: float, sigma: float,
     Cell distances are whole numbers under a root, so the likelihood takes one value per
     squared distance; each point's cell stamps the few within reach of a non-zero value (a
     radius of 3.5 sigma), keeping the larger. (A Euclidean distance transform of the whole
-    grid, then ``exp`` of every cell, took 7.1 of a 2,400-point submap's 10.6 ms.)
+    grid, then ``exp`` of every cell, would take 7.1 of a 2,400-point submap's 10.6 ms.)
     """
     margin = math.ceil(3.0 * sigma / resolution) + 1
     lo = points.min(axis=0) - margin * resolution
@@ -163,8 +164,8 @@ def mean_likelihood(field: np.ndarray, origin: FloatArray, resolution: float,
     """Mean likelihood (0 to 1) of ``points`` ``(M, 2)`` (their frame) placed at ``pose`` in a
     byte grid ``field`` whose cell (0, 0) is centred at ``origin``, each cell index clamped
     to ``lo``..``hi``; 0 for no points. Once per scan and place followed: in NumPy, a dozen
-    array operations of a few microseconds each on 180 points (29 microseconds a call,
-    compiled 5.5; docs/benchmarks.md, 2026-12-04)."""
+    array operations of a few microseconds each on 180 points (29 microseconds a call;
+    compiled, 5.5)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     if len(pts) == 0:
         return 0.0
@@ -251,7 +252,7 @@ def first_match(grid: SearchGrid, points: FloatArray, centers: FloatArray, windo
     has it) holds a pose scoring ``min_score``, and the best pose there; None when none does.
     The answer of :func:`search` called on each in turn until one answers, in one compiled
     loop: a search along a saved path is a few hundred small ones, and called one by one
-    their setting up cost more than their searching (docs/benchmarks.md, 2026-12-04)."""
+    their setting up would cost more than their searching."""
     pts = np.asarray(points, dtype=np.float64)
     centers = np.ascontiguousarray(np.reshape(centers, (-1, 3)), dtype=np.float64)
     res, depth = grid.resolution, grid.depth
@@ -294,7 +295,7 @@ def _first_found(levels, pts, centers, turns, ox, oy, res, lo, hi_x, hi_y, strid
     for k in range(centers.shape[0]):
         thetas = centers[k, 2] + turns
         # Grouped per centre: the turn between rotations is taken from this centre's
-        # headings, as the search always did (rounded so, a group may differ by one).
+        # headings, as :func:`search` takes it (rounded so, a group may differ by one).
         group, middle, h = _groups(thetas, reach, steps, group_level, lo, 1 << top_level)
         placed[:] = False
         for g in range(middle.shape[0]):
@@ -447,12 +448,12 @@ def _start(steps, depth):  # pragma: no cover - compiled
     level lower, on that block's four quarters in the order the level's children are
     visited (the same answers, ties included), and rotations are grouped on the covering
     level: each of its blocks bounds a group over a quarter of the window, tighter than a
-    block of the stack's top level over the whole window, as groups were bounded before
-    (where the window filled that block, there was no room to group rotations at all).
-    (The localizer's search along the saved path, 13 cells a side: of the 4,420 windows
-    searched while ACES's second half was tracked, those whose groups all fall short rose
-    from 1,817 to 2,600, the candidates scored fell from 437,025 to 342,375, and the
-    searches took 66 ms instead of 80; docs/benchmarks.md, thirty-sixth session.) A wider
+    block of the stack's top level over the whole window (where the window fills that
+    block, there is no room to group rotations on it at all). (The localizer's search along
+    the saved path, 13 cells a side: of the 4,420 windows searched while ACES's second half
+    is tracked, 2,600 have groups that all fall short against 1,817 grouped on the top
+    level, 342,375 candidates are scored against 437,025, and the searches take 66 ms
+    against 80.) A wider
     window is searched from the stack's top level, whose blocks tile it, with rotations
     grouped there too where its blocks are wider than the window."""
     covering = _covering_level(steps, depth)
@@ -508,10 +509,10 @@ def _groups_alive(levels, flat, scale, group_level, min_score, stride, corners, 
     scored). The block of ``group_level`` set ``h`` cells back bounds every pose of the
     group in a corner's block; all alive, nothing scored, where ``h`` is 0. (In the
     localizer's search along the saved path, a window of 13 cells a side, the 43 rotations
-    fell into 3 groups under the stack's top blocks of 32 cells; in ACES's second half
-    1,980 of the 4,690 windows searched ended there, and its path searches took 119 ms
-    against 184; docs/benchmarks.md, thirtieth session. Under blocks of 16 over its
-    quarters, 7 groups: :func:`_start`.)"""
+    fall into 3 groups under the stack's top blocks of 32 cells; in ACES's second half
+    1,980 of the 4,690 windows searched end there, and its path searches take 119 ms
+    against 184 ungrouped. Under blocks of 16 over its quarters, 7 groups:
+    :func:`_start`.)"""
     nc = corners.shape[0]
     alive = np.ones((middle.shape[0], nc), dtype=np.int64)
     if h == 0:
@@ -568,8 +569,8 @@ def _dive(levels, level, flat, rot, ox, oy, values, n, steps, scale, stride, cen
 def block_sums(level, flat, rot, offset):  # pragma: no cover - compiled
     """For each candidate ``k``: the sum of ``level`` (a flattened grid of bytes) over the
     cells ``flat[rot[k]] + offset[k]`` (rotation ``rot[k]``'s points moved by ``offset[k]``
-    cells). In NumPy the gather made a (candidates, points) array of a few hundred thousand
-    entries per level before summing it (docs/benchmarks.md, 2026-12-03)."""
+    cells). In NumPy the gather would make a (candidates, points) array of a few hundred
+    thousand entries per level before summing it."""
     n = rot.shape[0]
     m = flat.shape[1]
     out = np.empty(n, dtype=np.int64)

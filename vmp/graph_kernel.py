@@ -1,10 +1,10 @@
 """The pose graph's per-edge terms compiled: each edge's error, its chi^2 and its 6 x 6 block and
 6-gradient of the normal equations.
 
-A Levenberg-Marquardt iteration of the pose graph linearises every edge. In NumPy that was a
-dozen ``einsum`` and array calls on (edges, 3, 6) arrays; an adjustment runs graduated
-non-convexity rounds of up to ten iterations each, and the Intel part's 133 adjustments made
-3,641 linearisations, about a sixth of mapping's time (docs/benchmarks.md, 2026-12-03).
+A Levenberg-Marquardt iteration of the pose graph linearises every edge; an adjustment runs
+graduated non-convexity rounds of up to ten iterations each, and the Intel part's 133
+adjustments make 3,641 linearisations. As a dozen NumPy ``einsum`` and array calls on
+(edges, 3, 6) arrays they are about a sixth of mapping's time.
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
 """The ICP iterations compiled: nearest reference point, point-to-line (and corner) residuals,
 Huber weights and the Gauss-Newton step, one loop per registration.
 
-An iteration on 170 points cost about 140 microseconds in NumPy: a k-d tree query of 50 (SciPy's
+An iteration on 170 points costs about 140 microseconds in NumPy: a k-d tree query of 50 (SciPy's
 ``cKDTree``, most of it call overhead on so few points) and some thirty array operations of a few
-microseconds each. Mapping registers each scan three to five times, so those calls were about
-40 % of mapping's time (docs/benchmarks.md, 2026-12-03). Compiled with Numba, the same arithmetic
+microseconds each. Mapping registers each scan three to five times, so in NumPy those calls
+would be about 40 % of mapping's time. Compiled with Numba, the same arithmetic
 with the nearest neighbour found in a grid of cells as wide as the widest correspondence gate
 (KISS-ICP's voxel hash map, in a sorted array; for a dense reference such as a saved map, with a
 table of where each cell starts) costs a few microseconds an iteration. The same cells serve the
@@ -32,13 +32,12 @@ _SLACK = 1e-9
 # ICP asked to (:func:`run_icp`'s ``revisit``) stops, unconverged, when a step comes back to
 # where one of this many steps before it started: its correspondences alternate between two
 # sets or a few (a point between neighbouring points of a saved map's wall band) and the steps
-# cycle for ever. Such cycles (of 2 to 13 steps) ran 119 of ACES's 498 tracking registrations
-# against its saved map to the 30 iterations' cap, half of that ICP's time (docs/benchmarks.md,
-# eighteenth session).
+# cycle for ever. Unstopped, such cycles (of 2 to 13 steps) run 119 of ACES's 498 tracking
+# registrations against its saved map to the 30 iterations' cap, half of that ICP's time.
 CYCLE = 10
 # How near (m, rad) such a step must come back: a cycle closing, not a step shrinking on its
 # way to converge (within ICP's tolerance of 5e-4, 52 of 82 such stops in a simulated band map
-# would have converged, some 2 cm away; within 1e-9, every one ran to the cap, tested).
+# would have converged, some 2 cm away; within 1e-9, every one runs to the cap, tested).
 REVISIT = 1e-9
 # A column's rows are looked up cell by cell in a hash table (:func:`cell_index`) up to this
 # many (ICP's widest gate touches three), else by binary search.
@@ -65,9 +64,8 @@ def cell_index(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
 
     In a table a cell's rows are found at once; in the keys, by two binary searches a column
     (about 200 ns each among a saved map's 53,000 points, most of what finding a point's
-    nearest neighbour cost: docs/benchmarks.md, seventeenth session). In a hash table, by a
-    probe or two a cell: among a scan's 180 points the two searches were still most of scan
-    odometry's ICP (docs/benchmarks.md, eighteenth session)."""
+    nearest neighbour would cost). In a hash table, by a probe or two a cell: among a scan's
+    180 points the two searches would still be most of scan odometry's ICP."""
     keys = np.ascontiguousarray(keys, dtype=np.int64)
     if len(keys) == 0:
         return keys, np.zeros((0, 0), dtype=np.int64), 0, 0
@@ -97,8 +95,8 @@ def _box(keys):  # pragma: no cover - compiled
 @kernel
 def _cell_hash(keys):  # pragma: no cover - compiled
     """The hash table of sorted ``keys``' cells (:func:`cell_index`): at most half full,
-    probed linearly from :func:`_slot`. (In NumPy calls, it took as long as sorting and
-    indexing a scan's points besides: a keyframe is made every few scans.)"""
+    probed linearly from :func:`_slot`. (In NumPy calls it would take as long as sorting
+    and indexing a scan's points besides: a keyframe is made every few scans.)"""
     cells = 1
     for i in range(1, keys.shape[0]):
         if keys[i] != keys[i - 1]:
@@ -255,8 +253,8 @@ def run_icp(cells, ref, normals, line, corner, pts, x, y, th, corners, start_gat
     back to within ``revisit`` of where one of the last :data:`CYCLE` steps started; with
     ``settle`` above 0, it stops, converged, where a step changes the matched points'
     residuals by less than ``settle`` (their weighted RMS change, to first order), however
-    far it moves the pose. (The same steps as the NumPy loop it replaced; see
-    :func:`vmp.registration._icp`.)"""
+    far it moves the pose. (The same steps as the NumPy spec in ``tests/test_icp_kernel.py``;
+    called by :func:`vmp.registration._icp`.)"""
     n = pts.shape[0]
     gate = start_gate
     converged = False
@@ -349,9 +347,9 @@ def run_icp(cells, ref, normals, line, corner, pts, x, y, th, corners, start_gat
         # the fit sees it): a step along what the fit leaves nearly free (a corridor's
         # axis, a wall band's slope) changes them little however long it is. Against a
         # saved map's wall bands, 82 % of ACES's tracking registrations leave a direction
-        # free, and their steps slide on a few millimetres at a time: stopped here, 13.4
-        # iterations on average become 11.5, and scan odometry's 6.2 become 5.1
-        # (docs/benchmarks.md, thirty-fourth session).
+        # free, and their steps slide on a few millimetres at a time: stopping here takes
+        # them 11.5 iterations on average rather than 13.4, and scan odometry's 5.1 rather
+        # than 6.2.
         change = (h00 * dx * dx + h11 * dy * dy + h22 * dth * dth
                   + 2.0 * (h01 * dx * dy + h02 * dx * dth + h12 * dy * dth))
         if change < settle * settle * w_total:

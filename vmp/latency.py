@@ -5,7 +5,7 @@ a tenth of a second to send its 361 bytes, and a logger may add its own delay. T
 stamped at the same moment then belongs to a robot that has already moved on, and at a turn
 of one radian a second the wheels' increment between two scans is off by several degrees (what
 looks like wheel slip). Raw odometry scores 0.86 deg on the ACES relations under a second;
-the same odometry read 0.1 s earlier scores 0.44 deg (fr079: 1.90 -> 0.90 deg).
+the same odometry read 0.1 s earlier scores 0.44 deg (fr079: 1.90 and 0.90 deg).
 
 :class:`Latency` keeps the recent odometry with its stamps and the heading increments that scan
 registration measured between consecutive scans (which do not depend on the scanner's mount
@@ -80,7 +80,7 @@ class Latency:
             return self._poses[-1].copy()
         # The first sample at or after t, looked for from the newest: t lies at most the
         # delay (0.3 s) back, a few samples. (Copying the 400 stamps into an array to search
-        # them took half of this call: 10 us a scan, in mapping and tracking alike.)
+        # them would take half of this call: 10 us a scan, in mapping and tracking alike.)
         i = len(st) - 1
         while i > 0 and st[i - 1] >= t:
             i -= 1

@@ -27,7 +27,7 @@ minus its score) less than :data:`RIVAL_FACTOR` times the best's share plus
 :data:`RIVAL_MARGIN` (then it is ambiguous:
 in a corridor seen only to 8 m, or one whose pilasters all look alike, the right place cannot
 be told from the others until the robot sees something that tells them apart). In the
-simulated office (scored in the submaps' grids, with their rounding) the right place scored
+simulated office (scored in the submaps' grids, with their rounding) the right place scores
 0.998 (median; 0.98 at the tenth percentile), wrong
 ones that ICP still fits 0.67 (0.84 at the ninetieth), but other stretches of corridor seen
 only to 8 m up to 0.976 over twenty scans: a ratio of scores cannot tell them apart, the
@@ -37,7 +37,7 @@ already (a corridor of pilasters keeps milestones only near its ends), so before
 declared the scan is also searched along the saved path far from it (:meth:`_elsewhere`).
 That search matches the last scans the place explains, carried into this scan's frame, not
 this scan alone: along aisles of alike bays many poses fit one scan whose scans before tell
-them apart, and a search that found them one by one ran out of its tries.
+them apart, and a search that finds them one by one runs out of its tries.
 
 It stays localized while the scans fit; after :data:`LOST_AFTER` misses in a row it is lost:
 the hypothesis keeps moving with odometry (the robot may just be looking into a room the map
@@ -60,8 +60,8 @@ other's is the place (:meth:`Localizer._told_apart`), and a look-alike the searc
 finds that only the views tell apart is followed, to be compared so too (where the views
 agree with the best place, one the scans before do not tell apart at all is followed too).
 One the search along the saved path finds that the views of the scans before tell apart is
-not: followed, it was compared over the scans both had views for, and the bays of an aisle
-read alike once the robot has moved on (:meth:`Localizer._elsewhere`). The views see
+not: followed, it would be compared over the scans both have views for, and the bays of an
+aisle read alike once the robot has moved on (:meth:`Localizer._elsewhere`). The views see
 what registration against the map's wall bands leaves free, where along an aisle or a
 corridor the place is: each place whose view is taken is also seen from offsets along the
 direction its filter is least sure of, and placed where they contradict the scan least
@@ -148,11 +148,9 @@ SAME_THETA = math.radians(5.0)  # ... and turned this little agrees with it
 # Searches made while the place trusted is doubted before its reference score is lowered to
 # what it scores now.
 DOUBT_SEARCHES = 3
-# The most places followed at once (the lowest ranked dropped). Along the simulated
-# warehouse's aisles a dozen bays score alike by their end points; with 8, the views had told
-# the right bay from those followed, but a bay found beside them was dropped before it could
-# be compared and found again at the next search, scan after scan (the start of seed 119
-# declared after 62 scans, against 6 with 16; docs/benchmarks.md, twenty-sixth session).
+# The most places followed at once (the lowest ranked dropped): along the simulated
+# warehouse's aisles a dozen bays score alike by their end points, and each must stay followed
+# until the views tell them apart.
 MAX_HYPOTHESES = 16
 WINDOW = 20  # scans over which hypotheses are compared
 KEEP_RATIO = 0.8  # a scan scoring less than this share of a hypothesis's usual is a miss
@@ -162,15 +160,11 @@ KEEP_RATIO = 0.8  # a scan scoring less than this share of a hypothesis's usual 
 RIVAL_FACTOR = 2.0
 RIVAL_MARGIN = 0.01
 # The same margin for scores read from a branch-and-bound search grid (the searches for
-# look-alikes): its 0.1 m cells round a point's score by up to a third, and a scan's by a
-# tenth (the simulated warehouse's right place: 1.000 in one milestone's grid, 0.88 in the
-# map's). At 0.01 the simulated corridor's search along the path missed the right stretch of
-# its bent map, and its twin 28 m away was declared (docs/benchmarks.md, seventeenth session).
+# look-alikes), wider: its 0.1 m cells round a point's score by up to a third, and a scan's by
+# a tenth (at 0.01 the simulated corridor's search along the path misses the right stretch).
 GRID_MARGIN = 0.02
-# Live points registered and scored: within this range (m). (It was the submaps' reach when
-# each milestone's submap was tracked apart. Against the whole map every point could be: then
-# ACES's second half was localized on 34.6 % of its scans against 43.1 %, the Intel part's
-# relation error 0.0214 m against 0.0208, fr079 the same; docs/benchmarks.md.)
+# Live points registered and scored: within this range (m), a submap's reach
+# (vmp.places.GRID_RADIUS); with every point, fewer of ACES's second half's scans localize.
 REACH = 20.0
 # Before a place is declared, the poses this far around it (m, rad) are searched for one that
 # explains the scan about as well (a pilaster 5 m along a corridor, a rack bay 2.5 m along an
@@ -183,13 +177,10 @@ ALIAS_APART = (0.5, math.radians(5.0))
 MAX_ALIKE = 8
 # The search along the saved path for look-alikes of a place (:meth:`Localizer._elsewhere`)
 # matches the last scans it explains in a row, this many at most, carried into this scan's
-# frame by scan odometry (:meth:`Localizer._searched_with`). With this scan alone, it found
-# along the simulated warehouse's aisles one pose after another where this scan fitted as well
-# but the scans before did not, and ran out of its tries on them: the start of seed 105 was
-# never declared, though its first scans told the right bay from every other. The search
-# nearby (:meth:`Localizer._aliased`) still matches this scan alone: running out of its tries
-# on poses a few decimetres apart is what kept a place 16 m off undeclared in fr079 cut at 0.45
-# (a corridor where the scan fits many poses; docs/benchmarks.md, twenty-fourth session).
+# frame by scan odometry (:meth:`Localizer._searched_with`): along the simulated warehouse's
+# aisles many poses fit this scan alone but not the scans before. The search nearby
+# (:meth:`Localizer._aliased`) matches this scan alone: where it fits many poses a few
+# decimetres apart (a corridor), running out of tries on them keeps a look-alike undeclared.
 SEARCH_SCANS = 10
 # Around each sample of the saved path the scan is searched this far either way (m, rad):
 # the samples lie a metre apart, and the robot at a look-alike stands to the path about as
@@ -203,18 +194,15 @@ PATH_WINDOW_THETA = math.radians(10.0)
 VIEW_FACTOR = 1.5
 VIEW_MARGIN = 0.01
 # Views that contradict more than this share of the beams at the better place tell nothing
-# apart. (On ACES, people and a path a few decimetres aside left 9-34 % of the beams
-# contradicted where the right place was declared; a wrong place whose views contradicted
-# 27 % was declared when another's contradicted 81 %, cut at 0.55. In the simulated worlds
-# the right places' views contradict 0-1.2 %.)
+# apart: the right places' views contradict 0-1.2 % in the simulated worlds, but 9-34 % on
+# ACES (people, a path a few decimetres aside).
 VIEW_MOST = 0.05
 VIEW_Z = 3.0
 MIN_VIEWS = 5
 # A place a search finds is judged on the scans before it, carried back along scan odometry,
 # where a wall seen at a grazing angle from a pose a little off contradicts more beams: told
-# apart by views so at this margin only. (At 0.01, the searches told apart by their views
-# more and more wrong stretches of the simulated corridor's look-alikes, until one facing
-# the other way was declared, seed 118.)
+# apart by views so at this margin only (at 0.01, the searches tell so many of the simulated
+# corridor's look-alikes apart by their views that one facing the other way is declared).
 FOUND_VIEW_MARGIN = 0.03
 # A place is placed along the direction its filter is least sure of by its views from
 # offsets this far apart (m: half a view's agreement, vmp.views.AGREE) ...
@@ -237,10 +225,9 @@ ANYWHERE_APART = (1.0, math.radians(20.0))
 # RECKON_XY[0] plus RECKON_XY[1] times the distance driven since (m) either way, and
 # RECKON_THETA likewise (rad, per metre), at most RECKON_MOST_THETA; searched as the whole
 # map is (every ANYWHERE_EVERY scans at most, once moved), until the window would exceed
-# RECKON_MOST_XY. Scan odometry against one go's poses (from every 25th scan of ACES, fr079
-# and the Intel part) was off by 0.7-1.1 m and 8-9 deg at the 95th percentile after 10 m,
-# 1.9-2.2 m and 9-16 deg after 20 m, 2.8-3.6 m and 10-20 deg after 40 m, at most 6.1 m and
-# 26 deg after 80 m (docs/benchmarks.md, thirty-third session).
+# RECKON_MOST_XY: scan odometry against one go's poses (every 25th scan of ACES, fr079 and
+# the Intel part) is off by up to 1.1 m and 9 deg after 10 m, 3.6 m and 20 deg after 40 m
+# (95th percentile).
 RECKON_XY = (1.0, 0.1)
 RECKON_THETA = (math.radians(10.0), math.radians(0.3))
 RECKON_MOST_XY = 8.0
@@ -356,22 +343,21 @@ class Localizer:
         self.config = config or MappingConfig()
         # The hypotheses move as the mapper's filter does: by the wheels refined by scan
         # odometry. Moved by the wheels alone (their registrations against the map doing what
-        # scan odometry would), tracking scored 0.03 m on the Intel part's second half
-        # against 0.014 m mapped, each scan's registration against the map's thick walls
-        # pulling its own way; 0.022 m with scan odometry (docs/benchmarks.md). Its ICP stops
-        # where its steps cycle (126 of 1,535 on ACES's tracked half ran to the cap, 27 % of
-        # that ICP's time; docs/benchmarks.md, nineteenth session) or no longer change the fit.
+        # scan odometry would), each scan's registration against the map's thick walls pulls
+        # its own way: tracking the Intel part's second half scores 0.03 m so, 0.022 m with
+        # scan odometry (0.014 m mapped). Its ICP stops where its steps cycle (else 126 of
+        # 1,535 on ACES's tracked half run to the cap, 27 % of that ICP's time) or no longer
+        # change the fit.
         self.front = FrontEnd(self.config, filtered=False, stops_early=True)
         # The place trusted is registered against the map once it has moved or turned as far
         # as scan odometry goes before it takes a new keyframe (0.3 m or 10 deg by default);
         # in between, scan odometry carries it and each scan is scored where it is
-        # predicted, so that a kidnap is noticed as before. Within a keyframe's span scan
+        # predicted, so that a kidnap is still noticed. Within a keyframe's span scan
         # odometry registers each scan against that one keyframe, so its error does not
         # build up scan by scan, and registrations of nearly the same view against the same
-        # map share the map's own local error. (Every 0.1 m or 5 deg, as before, registering
-        # against the map and correcting the filter took a quarter of ACES's tracked time, 94
-        # of 365 us a scan: 190 us a registration against scan odometry's 90;
-        # docs/benchmarks.md, thirty-seventh session.) Without scan odometry the wheels alone
+        # map share the map's own local error. (Every 0.1 m or 5 deg, registering against the
+        # map and correcting the filter would take a quarter of ACES's tracked time: 190 us a
+        # registration against scan odometry's 90.) Without scan odometry the wheels alone
         # carry it: it is registered whenever it moved (:func:`vmp.frontend.new_view`).
         keyframes = self.config.scan_odometry
         self._track_every: tuple[float, ...] = (
@@ -464,10 +450,10 @@ class Localizer:
         the last scan not left out and sees what it saw then: its wheels moved less than a new
         view (:func:`vmp.frontend.new_view`) and most beams read the same
         (:func:`_same_view`). Such a scan says nothing new: the mapper does not match it
-        either. (ACES's second half stands still on 41 % of its scans, and a tracked scan
-        standing still cost 239 us, half of it scan odometry finding no motion, the rest
-        scoring the same view again and searching anew for a better place from where the
-        search before found none; docs/benchmarks.md, twenty-first session.) A robot carried
+        either. (ACES's second half stands still on 41 % of its scans, and tracking such a
+        scan would cost 239 us: half of it scan odometry finding no motion, the rest scoring
+        the same view again and searching anew for a better place from where the search
+        before found none.) A robot carried
         off sees something else, even when its wheels stand still."""
         last = self._last_frame
         if (self.state is not State.LOCALIZED or len(self.hypotheses) != 1
@@ -510,18 +496,17 @@ class Localizer:
         every place followed and every pose farther than :data:`ANYWHERE_APART` from it (a
         look-alike anywhere in the map). The signatures propose only places with a
         milestone near: of the scans of ACES's second half its first half's map explains
-        but the localizer was not localized on, 73 of 115 (sampled) had none within the
+        but the signatures do not localize, 73 of 115 (sampled) have none within the
         search's 2 m, the nearest 3.6 m off at the median; searched in the whole map, 24 of
-        81 were found so, none wrong (docs/benchmarks.md, twenty-ninth session)."""
+        81 are found so, none wrong."""
         live = search_points(self._points)
         if len(live) < MIN_POINTS:
             return
         # Only a pose that explains the scan clearly better than every place followed is
         # followed beside them: the search prunes below that, and is not run where nothing
-        # could be (a place followed explains the scan fully). The same share of the real
-        # logs' second halves localized, ACES's took 38.9 s against 46.6 (its slowest
-        # scan while searching 412 ms against 690), the Intel part's 14.1 against 18.5
-        # (docs/benchmarks.md, thirty-first session).
+        # could be (a place followed explains the scan fully): ACES's second half is tracked
+        # in 38.9 s so rather than 46.6 (its slowest scan while searching 412 ms rather than
+        # 690), the Intel part's in 14.1 rather than 18.5, the same share localized.
         self._follow_clear_best(live, lambda least, exclude: self.places.everywhere(
             live, least, exclude), "of the whole map", "in the whole map")
 
@@ -531,12 +516,11 @@ class Localizer:
         about where scan odometry has carried the place lost (:data:`RECKON_XY`,
         :data:`RECKON_THETA`). The signatures propose only places with a milestone near,
         and while they propose some the whole map is not searched: coming back from rooms
-        the first part of ACES never saw, the robot went unlocalized for a hundred scans where
-        the map explains them (scans 1,105-1,209 of its second half, the signatures proposing
-        look-alikes 18-35 m off) though the pose best in the whole map was the right one, and
-        the only one, from scan 1,183 on (docs/benchmarks.md, thirty-third session). A robot
-        carried off is found as before, by the signatures; found here, a place is judged as
-        any other."""
+        the first part of ACES never saw, the robot would go unlocalized for a hundred scans
+        where the map explains them (scans 1,105-1,209 of its second half, the signatures
+        proposing look-alikes 18-35 m off), though the pose best in the whole map is the
+        right one, and the only one, from scan 1,183 on. A robot carried off is still found
+        by the signatures; found here, a place is judged as any other."""
         xy = RECKON_XY[0] + RECKON_XY[1] * self._driven
         if xy > RECKON_MOST_XY:
             self._reckoned = None  # driven too far to say where
@@ -575,9 +559,9 @@ class Localizer:
         ``pose`` (a proposal) in the whole map, registered there where that fits; ``pose``
         when none scores better. A milestone's submap holds only what was seen near the
         milestone, and the pose best there may sit off in the whole map, where ICP holds it
-        on its own minimum: the simulated warehouse's kidnap of seed 119 was proposed 0.78 m
+        on its own minimum: the simulated warehouse's kidnap of seed 119 is proposed 0.78 m
         along the aisle from the right bay, scoring 0.946 where the right pose scores 1.000,
-        and was never found there (docs/benchmarks.md, twenty-sixth session)."""
+        and ICP does not find the right pose from there."""
         live = search_points(self._points)
         if len(live) < MIN_POINTS:
             return pose
@@ -593,8 +577,8 @@ class Localizer:
         """Search around the place trusted, doubted, for a pose that explains the scan clearly
         better (a rack bay further along the aisle), and follow it. (The signatures' search
         would find places anywhere, but costs about 0.15 s, and real logs doubt their place
-        now and then where the map is thin: it cut tracking on ACES's second half to a third
-        of its speed; docs/benchmarks.md.)"""
+        now and then where the map is thin: it would cut tracking on ACES's second half to a
+        third of its speed.)"""
         self.stats["searches while doubted"] += 1
         trusted.doubts += 1
         if trusted.doubts >= DOUBT_SEARCHES:
@@ -612,7 +596,7 @@ class Localizer:
         # A robot carried farther than the window (along an aisle, 14.6 m back in the
         # simulated warehouse) still fits the old place at 0.85: the saved path is searched
         # too, at the last search of the doubt (the real logs doubt their place now and then
-        # where the map is thin; searched at every one, tracking slowed by a fifth on ACES).
+        # where the map is thin; searched at every one, tracking on ACES slows by a fifth).
         far = self._along_path(trusted.pose, _least_clearly_better, live, [trusted.pose])
         if far is not None:
             self.stats["places found along the path while doubted"] += 1
@@ -627,11 +611,10 @@ class Localizer:
 
         A robot carried to a look-alike bay still fits the old place by its end points (in
         the simulated warehouse's kidnaps of seeds 123 and 134, carried 15.6 and 22.6 m, at
-        0.95-1.00 for 36 scans), but its views, contradicting 0-1 of 181 beams before,
-        contradicted 9-17 from the first scan after. Losing the place on its views alone lost
-        it on real logs too, where views vouch only in a good spot and contradict 7-54 % of
-        the beams a few metres on (docs/benchmarks.md, twenty-fifth and twenty-sixth
-        sessions): only a place found gives way."""
+        0.95-1.00 for 36 scans), but its views, contradicting 0-1 of 181 beams before the
+        kidnap, contradict 9-17 from the first scan after. Losing the place on its views alone
+        would lose it on real logs too, where views vouch only in a good spot and contradict
+        7-54 % of the beams a few metres on: only a place found gives way."""
         self.stats["searches while the views doubted"] += 1
         live = search_points(self._points)
         known = [trusted.pose]
@@ -659,8 +642,8 @@ class Localizer:
         the points ``live`` explain about as well as at ``h``, :data:`MAX_ALIKE` times
         :data:`MAX_HYPOTHESES` in all at most. (Each search near ``h`` leaves out every pose
         found before it, and where the map explains the scan about as well all around, as in
-        an open hall, they run on: on ACES's second half 128 of them, 47 ms each, took one
-        scan 6.2 s; the search along the path goes on from where it stopped.)"""
+        an open hall, they would run on: on ACES's second half 128 of them, 47 ms each, take
+        one scan 6.2 s; the search along the path goes on from where it stopped.)"""
         tries = 0
         while tries < MAX_ALIKE:
             near = self._near(h, _least_as_well, live, known)
@@ -704,14 +687,14 @@ class Localizer:
             # Lines only: in a map assembled from many scans and thinned to 5 cm, the walls
             # are bands, and three quarters of the Intel part's submap points (84 % on ACES)
             # have no clear line through their neighbours. The corner pass, meant for posts
-            # and corners along an aisle, matched those band points point to point on 10,137
-            # of ACES's 11,567 registrations; the direction lines leave free stays the
-            # filter's, carried by scan odometry (docs/benchmarks.md, 2026-12-02).
+            # and corners along an aisle, would match those band points point to point (on
+            # 10,137 of ACES's 11,567 registrations); the direction lines leave free stays the
+            # filter's, carried by scan odometry.
             # Stopped where its steps cycle (against a saved map's wall bands a quarter of
             # them would run to the cap: vmp.icp_kernel.CYCLE) or no longer change the fit
             # (vmp.icp_kernel.run_icp's ``settle``). Mapping's ICP runs on:
-            # which pose of a cycle it ends on moved the Intel part's relation error between
-            # 0.017 and 0.021 m (docs/benchmarks.md, eighteenth session).
+            # which pose of a cycle it ends on moves the Intel part's relation error between
+            # 0.017 and 0.021 m.
             reg = register(places.reference, near, h.pose, corners=False, stops_early=True)
             if places.fits(reg, near, self.config.registration):
                 update = h.filter.mahalanobis2(reg.pose, reg.covariance) <= CHI2_3DOF_99
@@ -737,17 +720,17 @@ class Localizer:
 
     def _restart(self, h: Hypothesis, pose: FloatArray) -> None:
         """Move ``h``, a place declared, to ``pose``, known as well as a place proposed: its
-        filter was sure of a pose the scan fits clearly worse. A place dead-reckoned through
-        scans that did not fit comes out of them as sure of its heading as before (within a
-        degree), and a registration to the right pose lay outside its gate scan after scan:
-        on the Intel part's cut at 0.45 the place lost fitted again 4 deg off, scoring
-        0.75-0.81 where the registration scored 0.93-1.000, for 60 scans, and was not
-        resumed. A place trusted drifts so too, its scan odometry surer than it should be
-        (on the Intel part's second half 0.27 m off, moved to 0.14; 0.16 m, moved to 0.02).
-        Only a place declared, where the robot was: moved so, a place proposed that was not
-        the right one fitted its look-alike clearly better than its rivals did (fr079's cut
-        at 0.45, 12 m off, declared; docs/benchmarks.md, thirty-third session). One that
-        only fits as well, as the next pilaster of a corridor does, stays."""
+        filter is sure of a pose the scan fits clearly worse. A place dead-reckoned through
+        scans that did not fit comes out of them as sure of its heading as it went in (within
+        a degree), and a registration to the right pose may lie outside its gate scan after
+        scan: on the Intel part's cut at 0.45 the place lost fits again 4 deg off, scoring
+        0.75-0.81 where the registration scores 0.93-1.000, for 60 scans, and unmoved it
+        would not resume. A place trusted drifts so too, its scan odometry surer than it
+        should be (on the Intel part's second half 0.27 m off, moved to 0.14; 0.16 m, moved
+        to 0.02). Only a place declared, where the robot was: moved so, a place proposed that
+        is not the right one would fit its look-alike clearly better than its rivals do
+        (fr079's cut at 0.45: 12 m off, declared). One that only fits as well, as the next
+        pilaster of a corridor does, stays."""
         h.filter = PoseFilter(pose, _proposal_covariance(pose), self.config.motion)
         self.stats["places moved where the scan fits clearly better, outside their gate"] += 1
 
@@ -779,10 +762,10 @@ class Localizer:
 
         Against a saved map's wall bands, registration leaves the direction along an aisle or
         a corridor free, and scan odometry carries the place along it, drifting: the right
-        place of the simulated warehouse's kidnap of seed 102 went from 0.08 to 0.20 m off
+        place of the simulated warehouse's kidnap of seed 102 drifts from 0.08 to 0.20 m off
         along its aisle over 50 scans, its views then contradicting 2-4 % of the beams where
-        they had contradicted none, as many as a look-alike's, and it was declared after 61
-        scans (26 placed so). The views see along the aisle (a beam stopped by a rack's end,
+        they contradicted none, as many as a look-alike's (declared after 61 scans unplaced,
+        after 26 placed so). The views see along the aisle (a beam stopped by a rack's end,
         or passing it): the offsets whose views contradict about as few beams as the fewest (within
         :data:`VIEW_Z` standard deviations of a count) are where the place is, as sure as half
         their spread (:data:`PLACE_STEP` at least). Only where they are one stretch, not every
@@ -834,11 +817,11 @@ class Localizer:
         (:data:`KEEP_RATIO` of ``score``), which counts 0, or :data:`WINDOW` scans back; and
         this scan's view from ``pose``.
 
-        A place found later than another was compared with it only over the scans since,
-        and a look-alike found a few scans after the right place could stay its rival for
-        as long as the two look alike: the simulated warehouse's start at scan 1374 of seed
-        110 was declared after 52 scans, the office's kidnap of seed 113 after 84. Compared
-        over the scans before too, after 6 each (docs/benchmarks.md, nineteenth session).
+        Compared with another only over the scans since it was found, a look-alike found a
+        few scans after the right place would stay its rival for as long as the two look
+        alike: the simulated warehouse's start at scan 1374 of seed 110 would be declared
+        after 52 scans, the office's kidnap of seed 113 after 84; compared over the scans
+        before too, after 6 each.
         (The bays along an aisle often stay alike: the endpoint score cannot see what tells
         them apart in the world, a beam that would stop short or pass a rack's end.)"""
         out: list[float] = []
@@ -881,7 +864,7 @@ class Localizer:
             # many others are proposed: it may fit again (below, in the decision). Among the
             # places that score about as well as the best, those whose views agree best
             # come first (along the simulated warehouse's aisles many score 1.000, and the
-            # right place was dropped for later ones); views that tell nothing
+            # right place would be dropped for later ones); views that tell nothing
             # (:data:`VIEW_MOST`) do not rank a place.
             return (-h.trusted, -h.declared, not _as_well(h.score, top),
                     min(_view_share(h), VIEW_MOST), -h.score)
@@ -914,13 +897,13 @@ class Localizer:
         place is best from the next scan on. So is one the scans before do not tell apart at
         all, where the saved map's views vouch for ``h`` (they contradict at most
         :data:`VIEW_MOST` of the beams, so they may tell the two apart on the scans to come):
-        found and let go scan after scan, it held the decision for as long as the bays read
-        alike (the simulated warehouse's kidnap of seed 116: the bay 2.4 m along the aisle,
-        found again scan after scan from the 14th, and localized after 45; followed, its
-        views told it apart at the next scan). Where the views tell nothing, a place
-        followed beside ``h`` only holds the decision longer: the Intel part's second half,
-        localized on 69.5 % of its scans, was on 57.1 % with every such find followed
-        (docs/benchmarks.md, twenty-fifth session)."""
+        found and let go scan after scan, it would hold the decision for as long as the bays
+        read alike (the simulated warehouse's kidnap of seed 116: the bay 2.4 m along the
+        aisle, found again scan after scan from the 14th, would delay the robot's
+        localization to the 45th; followed, its views tell it apart at the next scan). Where
+        the views tell nothing, a place followed beside ``h`` only holds the decision longer:
+        the Intel part's second half, localized on 69.5 % of its scans, would be on 57.1 %
+        with every such find followed."""
         known = [h.pose] + [o.pose for o in self._seen_apart(h)]
         live = search_points(self._points)
         vouched = _view_share(h) <= VIEW_MOST
@@ -981,10 +964,10 @@ class Localizer:
         (:func:`_seen_clearly_better`, at :data:`FOUND_VIEW_MARGIN`), None when neither.
         For a place declared before, over the scans it has fitted in a row since it was lost
         only: the robot may have been carried off meanwhile, and the scans before say nothing
-        of where to. (When such a place was never told apart so, the Intel part's second half
-        started 4 scans late stayed ambiguous for 544 scans after its place was lost and
-        found again: a look-alike a few metres along the corridor scored as well in the
-        search's grid on one scan; docs/benchmarks.md, twentieth session.)"""
+        of where to. (Were such a place never told apart so, the Intel part's second half
+        started 4 scans late would stay ambiguous for 544 scans after its place is lost and
+        found again: a look-alike a few metres along the corridor scores as well in the
+        search's grid on one scan.)"""
         if best.declared:
             mine = list(best.scores)[len(best.scores) - best.streak:]
             my_views = list(best.views)[len(best.views) - best.streak:]
@@ -1048,9 +1031,9 @@ class Localizer:
         are forgotten (each place's scans carried back, and the last scans new places are
         carried back over), as they are for a place declared before the robot was lost
         (:func:`_over_common_scans`). Compared over them, the right bay of the simulated
-        warehouse's kidnap of seed 134 took over after 9 scans but was declared after 35:
-        the bays alike found next were told apart from it by neither the scans nor the views
-        from before the kidnap (docs/benchmarks.md, twenty-seventh session)."""
+        warehouse's kidnap of seed 134 would take over after 9 scans but be declared after
+        35: neither the scans nor the views from before the kidnap tell it from the bays
+        alike found next."""
         while len(self._recent) > len(found.scores):
             self._recent.popleft()
         for h in self.hypotheses:
@@ -1094,7 +1077,7 @@ class Localizer:
             return waiting
         resumed = self._resumed(fitting)
         if resumed is not None and not self._aliased(resumed):
-            # (Unchecked for a look-alike nearby, the simulated office's old place resumed
+            # (Unchecked for a look-alike nearby, the simulated office's old place would resume
             # after a kidnap to another stretch of its pilastered corridor.)
             return self._declare(resumed, "times the lost place resumed")
         best = self._told_apart(max(fitting, key=lambda h: h.score))
@@ -1146,22 +1129,21 @@ class Localizer:
 
         The signatures propose only places with a milestone, and the mapper records none
         where the view matches one recorded already: the simulated corridor's map has
-        milestones at 1-2 m and 34.6-39.3 m of its 39 m. A robot carried to 12.6 m could
-        only be found at a look-alike, and one 28 m away, in step with the pilasters, was
-        declared (0.97; the right stretch scores 0.98-0.99 but was never proposed).
+        milestones at 1-2 m and 34.6-39.3 m of its 39 m. A robot carried to 12.6 m can only
+        be found at a look-alike, and one 28 m away, in step with the pilasters, would be
+        declared (0.97; the right stretch scores 0.98-0.99 but is never proposed).
 
         A place found is followed from then on, and left out of the later searches once it
         has fitted :data:`MIN_FITS` scans and is no rival of the best (:func:`_left_behind`):
         in the simulated warehouse the other loading dock, 14 m along the aisle, matches
         single scans about as well in the search's grid, scores 0.98-0.99 over twenty where
-        the right place scores 1.000, and was found again at every search, holding the
+        the right place scores 1.000, and would be found again at every search, holding the
         decision for 40-70 scans. Unless it explains this scan about as well as the best
         (:func:`_explains_now`): a place followed since before the robot was carried there
-        explains the scans from before clearly worse, and, left out, let a look-alike be
-        declared (the simulated corridor's kidnap of seed 109: the right place explained each
-        scan since the 10th after at 1.000, but the twenty at 0.85-0.97, and the west end,
-        38 m off and facing the other way, was declared at 1.000; docs/benchmarks.md,
-        twenty-sixth session)."""
+        explains the scans from before clearly worse, and, left out, would let a look-alike
+        be declared (the simulated corridor's kidnap of seed 109: the right place explains
+        each scan from the 10th after at 1.000, but the twenty at 0.85-0.97, and the west
+        end, 38 m off and facing the other way, scores 1.000)."""
         if best.checked_at is not None and not self._moved_since(best.checked_at):
             return best.alike
         best.checked_at = self._odometry.copy()
@@ -1185,20 +1167,20 @@ class Localizer:
                 best.alike = True
                 return best.alike
             # Told apart by the scans before, by their scores or their views: not followed.
-            # (Followed, a place the views told apart was compared with the best over the
-            # last scans both have views for, the last MIN_VIEWS of them included, and the
-            # bays of an aisle read alike once the robot has moved on: at the simulated
+            # (Followed, a place the views told apart would be compared with the best over
+            # the last scans both have views for, the last MIN_VIEWS of them included, and
+            # the bays of an aisle read alike once the robot has moved on: at the simulated
             # warehouse's kidnap of seed 100 the views of the bays 7.5-15 m along the aisle
-            # contradicted 10-60 of 180 beams on each of the ten scans before they were
-            # found, the right bay's none, then both 0-4 a scan; never declared.)
+            # contradict 10-60 of 180 beams on each of the ten scans before they are found,
+            # the right bay's none, then both 0-4 a scan.)
             if told == "views":
                 by_views = True
                 self.stats["places along the path the views of the scans before told apart"] += 1
             left.append(found.pose)
         # Out of tries: every place found was told apart by the scans before. Where the
         # views told some apart, the search went farther than the scores alone would have
-        # let it, and decides nothing (along the simulated corridor's look-alikes it then
-        # declared wrong stretches, seeds 104, 106, 112 and 138).
+        # let it, and decides nothing (deciding, it would declare wrong stretches among the
+        # simulated corridor's look-alikes: seeds 104, 106, 112 and 138).
         best.alike = best.alike or bool(seen_apart) or by_views
         return best.alike
 
@@ -1209,12 +1191,11 @@ class Localizer:
         once the robot has moved since (:meth:`_moved_since`).
 
         The signatures propose only places with a milestone near, and the whole map is
-        searched only while they propose none: on ACES's cut at 0.625 a look-alike they
-        proposed was declared 5.2 m and 90 deg off where the robot, 3.3 m from the nearest
-        milestone, explained the scan at 0.934 against 0.831, and one found where the robot
-        dead-reckoned 34.4 m and 176 deg off where it explained it at 1.000 against 0.957;
-        no place near the robot had been followed (docs/benchmarks.md, thirty-fifth and
-        thirty-sixth sessions)."""
+        searched only while they propose none: unsearched, on ACES's cut at 0.625 a
+        look-alike they propose would be declared 5.2 m and 90 deg off where the robot, 3.3 m
+        from the nearest milestone, explains the scan at 0.934 against 0.831, and one found
+        where the robot dead-reckons 34.4 m and 176 deg off where it explains it at 1.000
+        against 0.957, with no place near the robot followed."""
         if best.bettered_at is not None and not self._moved_since(best.bettered_at):
             return False
         best.bettered_at = self._odometry.copy()
@@ -1343,13 +1324,13 @@ def _over_common_scans(h: Hypothesis, other: Hypothesis) -> tuple[float, float]:
     """The mean scores of ``h`` and ``other`` over the last scans both have scores for (those
     before they were proposed included: :attr:`Hypothesis.history`), but for those neither
     explains: a scan both miss says nothing of which is the better. (A robot carried off
-    misses the scans before at every place it may have been carried to, and such a miss
-    in both pasts kept the right place and one 6 m off rivals until it left the window:
-    recovering in the simulated office took 19 scans where it had taken 12.) A place
+    misses the scans before at every place it may have been carried to, and counted, such a
+    miss in both pasts would keep the right place and one 6 m off rivals until it leaves the
+    window: recovering in the simulated office would take 19 scans rather than 12.) A place
     declared before is compared over the scans both were followed only: the robot was there
     before it was carried off, and the places it may have been carried to miss those scans
-    (compared over them, the old place stayed a rival of the right one for up to 7 scans more
-    after the simulated warehouse's kidnaps)."""
+    (compared over them, the old place would stay a rival of the right one for up to 7 scans
+    more after the simulated warehouse's kidnaps)."""
     if h.declared or other.declared:  # over the scans both were followed
         return _compared(list(h.scores), list(other.scores), unexplained=True)
     return _compared(h.history, other.history)
@@ -1449,11 +1430,10 @@ def _reachable(h: Hypothesis, trusted: Hypothesis) -> bool:
     carried there). A place farther off that explains those scans all the way back is a
     look-alike of the place trusted along the path the robot drove, not where it went: the
     scans went on fitting the place trusted, and no kidnap broke them. (On real logs, where
-    the saved map is thinner at the right place than at its look-alike, such places outdid
-    the right place: ACES cut at 0.65, the mirror of a corridor 4.9 m off and facing the
-    other way, 0.985 against 0.900, then declared; fr079's second half, the corridor 19 m
-    off facing the other way, 0.935 against 0.846; docs/benchmarks.md, thirty-second
-    session.)"""
+    the saved map is thinner at the right place than at its look-alike, such places would
+    outdo the right place: ACES cut at 0.65, the mirror of a corridor 4.9 m off and facing
+    the other way, 0.985 against 0.900; fr079's second half, the corridor 19 m off facing
+    the other way, 0.935 against 0.846.)"""
     if _within(trusted.pose, h.pose, ALIAS_WINDOW, ANYWHERE_APART[1]):
         return True
     return len(h.past) < WINDOW - 1 or 0.0 in h.past
@@ -1463,11 +1443,11 @@ def _over_scans_since(h: Hypothesis, trusted: Hypothesis) -> tuple[float, float]
     """The mean scores of ``h`` and the place ``trusted`` over the last scans ``h`` was
     followed and those before that it explains, back to the first it misses. Not over that
     miss: a robot carried off was at the trusted place then, and the place it was carried to
-    misses it (counted, the simulated warehouse's kidnap of seed 109 stayed at the old place
-    for 19 scans, against 12). But over the scans before that it explains: the office's
-    kidnap of seed 113 was found after 6 scans, not 84. (Along the warehouse's aisles a scan
-    before the kidnap may fit the new place too: seed 123's stayed at the old place for 41
-    scans, against 30 compared over the scans followed only.)"""
+    misses it (counted, the simulated warehouse's kidnap of seed 109 would stay at the old
+    place for 19 scans rather than 12). But over the scans before that it explains: the
+    office's kidnap of seed 113 is found after 6 scans, not 84. (Along the warehouse's aisles
+    a scan before the kidnap may fit the new place too: seed 123's stays at the old place for
+    41 scans, against 30 compared over the scans followed only.)"""
     past = h.past[1:] if h.past and h.past[0] == 0.0 else h.past
     return _compared((past + list(h.scores))[-WINDOW:], list(trusted.scores), unexplained=True)
 

@@ -40,10 +40,10 @@ MAX_WINDOW_THETA = math.radians(30.0)
 REACH = 3.0  # a milestone this far beyond the window may still share the view (m)
 # A candidate's submap takes in the segments of this many milestones either way. They are
 # placed by the graph as it stands, bends and all: with three either way, the Intel part's
-# finds on milestones 43-53 came out 4-5 degrees off, all alike, and confirmed each other.
+# finds on milestones 43-53 come out 4-5 degrees off, all alike, and confirm each other.
 NEIGHBOURS = 2
 # Submaps searched per search, best signatures first: at ACES's two long returns the right
-# one is the third or fourth, and with two those loops stayed open (docs/benchmarks.md).
+# one is the third or fourth, and with two those loops stay open (docs/benchmarks.md).
 CANDIDATES = 4
 RESOLUTION = 0.1  # search grid cell (m)
 SIGMA = 0.1  # likelihood fall-off (m)

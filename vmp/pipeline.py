@@ -56,7 +56,7 @@ class Pipeline:
     """Build a vector map and a corrected trajectory from scan frames."""
 
     # The id of this session's first milestone when it maps on in a saved map (a class
-    # default for checkpoints written before it was kept).
+    # default for checkpoints that do not hold it).
     _first_new: int | None = None
 
     def __init__(self, geometry: BeamGeometry, config: MappingConfig | None = None,

@@ -4,16 +4,15 @@ Localization reads a saved map and never changes it, so its frame is settled: ev
 of the assembled map is placed once (voxel-thinned). Scans are tracked against the whole map at
 once, in its frame: registered against one reference of its points and scored by their
 distances to them (:meth:`Places.score`), built on first use, and searched for look-alikes in
-one branch-and-bound grid. (Each milestone's submap had its own reference and scoring grid,
-built when first asked for and kept, least recently used dropped: the submaps, 40 m across and
-a few metres apart, overlap many times over, and building the references of those the robot
-passed was 16 % of tracking the Intel part's second half and 17 % of fr079's;
-docs/benchmarks.md, seventeenth session.) Around each milestone the points
-within :data:`GRID_RADIUS` form its submap, in the milestone's frame, whichever part of the path
-saw them, with a branch-and-bound search grid for the global search (turned as the milestone
-faces). The mapper's submaps (:mod:`vmp.submaps`) take only the milestone's segments and its
-neighbours', as the map may still move; a place seen again from elsewhere along the path would
-then look half empty.
+one branch-and-bound grid. (A reference and scoring grid for each milestone's submap, built
+when first asked for, would cover the same points many times over: the submaps, 40 m across
+and a few metres apart, overlap, and building the references of those the robot passes would
+be 16 % of tracking the Intel part's second half and 17 % of fr079's.) Around each milestone
+the points within :data:`GRID_RADIUS` form its submap, in the milestone's frame, whichever part
+of the path saw them, with a branch-and-bound search grid for the global search (turned as the
+milestone faces). The mapper's submaps (:mod:`vmp.submaps`) take only the milestone's segments
+and its neighbours', as the map may still move; a place seen again from elsewhere along the
+path would then look half empty.
 """
 
 from __future__ import annotations
@@ -39,7 +38,7 @@ GRID_RADIUS = 20.0  # submap points farther than this from the milestone are lef
 RESOLUTION = 0.1  # search grid cell (m)
 SIGMA = 0.1  # likelihood fall-off of the search grid (m)
 DEPTH = 5  # levels of block maxima
-VOXEL = 0.05  # one map point kept per cell of this size (m); 0.1 did worse on Intel
+VOXEL = 0.05  # one map point kept per cell of this size (m); 0.1 does worse on Intel
 MAX_WINDOW = 6.0  # the widest search window either way (m): the localizer's alias check
 CACHED = 32  # submaps kept (a search grid of one is a few MB)
 PATH_STEP = 1.0  # the saved path is sampled every this far (m) for look-alikes of a place
@@ -145,7 +144,7 @@ class Places:
         its search grid; None when there is none. ``exclude`` leaves out poses as the
         search does. The map's box is searched in windows of :data:`MAX_WINDOW` either way,
         each pruned below the best found so far (about 0.15 s for ACES's first half, 80 m
-        by 60; docs/benchmarks.md, twenty-ninth session)."""
+        by 60)."""
         if len(points) == 0 or len(self.points) == 0:
             return None
         grid = self.grid

@@ -35,8 +35,8 @@ GNC_START = 1000.0  # ... from at most this: an edge this far out is out from th
 GNC_ITERATIONS = 10  # Levenberg-Marquardt iterations per round
 # Levenberg-Marquardt stops when a step lowers the cost by less than this share, or when an
 # undamped step (lambda at most UNDAMPED: Gauss-Newton's, not one the damping shortened) moves
-# no coordinate by more than STEP_TOLERANCE (m, rad). A relative decrease of 1e-6 alone had
-# stopped where a heavily damped step crept on (Radish belgioioso: ATE 0.48 -> 1.76 m, worse
+# no coordinate by more than STEP_TOLERANCE (m, rad). A relative decrease of 1e-6 alone stops
+# where a heavily damped step creeps on (Radish belgioioso: ATE 1.76 m rather than 0.48, worse
 # than its odometry); the step rule leaves the Intel part's adjusted poses within 1e-7 m of
 # running each round to its limit.
 LM_TOLERANCE = 1e-12
@@ -44,8 +44,8 @@ STEP_TOLERANCE = 1e-5
 # A graduated non-convexity round before the last only sets the weights of the next: it stops
 # at steps under a millimetre (a milliradian), which move an edge's chi^2 by a few tenths
 # against the mu c^2 of at least 11 that its weight compares it with. The last round runs to
-# STEP_TOLERANCE. (fr079: 11,201 linearisations and factorisations before, in rounds that
-# converge linearly, the steps shrinking by a third each.)
+# STEP_TOLERANCE. (Every round run to it, fr079 takes 11,201 linearisations and
+# factorisations: the rounds converge linearly, the steps shrinking by a third each.)
 GNC_STEP_TOLERANCE = 1e-3
 UNDAMPED = 1e-5
 
@@ -111,7 +111,7 @@ class Marginals:
 
     The information is factorised once (a chain plus loops); a node's block is three solves.
     A mapper asks for a few nodes between two adjustments (the anchor, the candidates of a
-    loop), so solving them all was most of an adjustment's time: a quarter of a second per
+    loop), so solving them all would be most of an adjustment's time: a quarter of a second per
     adjustment on fr079's 500 milestones.
     """
 
@@ -174,7 +174,7 @@ class _Normal:
     ``H`` is the sum of one 6 x 6 block per edge. The places of the block entries of ``H``'s
     upper triangle (all the factorisation reads) in a CSC matrix are found once; each
     iteration then adds the blocks up with one ``bincount`` instead of forming the Jacobian and
-    ``J'J`` (a third of an adjustment's time before).
+    ``J'J`` (which would be a third of an adjustment's time).
     """
 
     def __init__(self, i: np.ndarray, j: np.ndarray, n: int) -> None:

@@ -1,10 +1,10 @@
 """Scan polygons rasterised row by row, compiled: the even-odd spans of each polygon marked in a
 difference image.
 
-In NumPy the crossings of every edge with every row were made as arrays, sorted by polygon, row
-and position, and paired: about 1 s of the Intel part's 5,505 scans at 5 cm (two sorts of a few
-million crossings). Here each polygon's crossings are bucketed by row and sorted within the
-row, a few dozen at a time (docs/benchmarks.md, 2026-12-03).
+Each polygon's crossings are bucketed by row and sorted within the row, a few dozen at a
+time. Made as NumPy arrays, sorted by polygon, row and position, and paired, the crossings of
+every edge with every row cost about 1 s of the Intel part's 5,505 scans at 5 cm (two sorts of
+a few million crossings).
 """
 
 from __future__ import annotations

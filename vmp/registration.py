@@ -106,7 +106,7 @@ def explained(reference: Reference, points: FloatArray, pose: FloatArray,
               distance: float) -> float:
     """The share of ``points`` (their frame) placed at ``pose`` that lie within ``distance``
     of a reference point, on a line or not (looked up in the reference's cells, as ICP does:
-    a k-d tree built for this took 2 ms on a localizer's 13,000-point submap)."""
+    a k-d tree built for this would take 2 ms on a localizer's 13,000-point submap)."""
     if len(points) == 0:
         return 0.0
     near = count_near(reference.cells, reference.points, _contiguous(points),

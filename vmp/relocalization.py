@@ -58,7 +58,7 @@ def propose(places: Places, frame: ScanFrame, registration: RegistrationConfig,
     frame), the places already followed, and those ``tried`` (searched lately, from about
     here): search after search looks farther down the signatures' list. (ACES, its second
     half: the robot stands still for 170 scans where the right milestone ranks 30th, and the
-    same failing candidates above it were searched again every time, each hiding its
+    same failing candidates above it would be searched again every time, each hiding its
     neighbours as one place.)"""
     points = frame.points()
     if len(points) < MIN_POINTS:

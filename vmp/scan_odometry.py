@@ -180,9 +180,9 @@ class ScanOdometry:
         then); rescale the motion noise to make the recent median chi-square's, and the
         noise the wheels count with beside a registration to make the 95th percentile
         chi-square's (the tail where they slip)."""
-        # Kept sorted as they come and go: sorted anew each scan, and clipped by NumPy, this
-        # took 0.19 s of scan odometry's 0.53 s in the Intel part's tracked second half
-        # (pyinstrument; docs/benchmarks.md, 2026-12-04).
+        # Kept sorted as they come and go: sorted anew each scan, and clipped by NumPy, they
+        # would take 0.19 s of scan odometry's 0.53 s in the Intel part's tracked second half
+        # (pyinstrument).
         if len(self._disagreement) == NOISE_MEMORY:
             del self._ordered[bisect.bisect_left(self._ordered, self._disagreement[0])]
         value = d2 * self.noise_scale  # as against the configured noise
@@ -264,7 +264,7 @@ class ScanOdometry:
 
 def _percentile(ordered: list[float], q: float) -> float:
     """``numpy.percentile(values, 100 q)`` (linear interpolation, to the last bit) of values
-    given in ascending order. Once per scan on 200 values numpy's took 40 microseconds, most
+    given in ascending order. Once per scan on 200 values numpy's takes 40 microseconds, most
     of it the call's own overhead: a sixth of scan odometry's time outside ICP."""
     n = len(ordered)
     at = (n - 1) * q

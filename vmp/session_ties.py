@@ -5,10 +5,9 @@ While a run maps on in a saved map, its loops to the old session close as any lo
 each new milestone the scan is searched where the drift since the last fix allows
 (:mod:`vmp.loops`), and a find joins the graph once another confirms it. A pass over the old
 session's ground that no search tied stays where the new session's own drift put it, held only
-by the ties before and after it. Merging ACES's halves, one such stretch was left 1.3 m off the
-first half's map (its relation error 0.0462 m against 0.0355 m mapped in one go), and whether
-it was depended on which pose of an ICP cycle the localizer's first fix ended on
-(docs/benchmarks.md, twentieth session).
+by the ties before and after it. Merging ACES's halves without the search below can leave one
+such stretch 1.3 m off the first half's map (its relation error 0.0462 m against 0.0355 m
+mapped in one go), depending on which pose of an ICP cycle the localizer's first fix ends on.
 
 So at the end, each new milestone's stored scan is searched again in the submaps of the old
 milestones around where the graph puts it (within :data:`WINDOW_XY` and

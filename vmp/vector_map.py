@@ -282,7 +282,7 @@ class VectorMap:
         A beam without a return (or with a "no echo" reading, :meth:`no_echo`) marks free
         space as far as it was stored to reach, but no farther than the farther of the hits
         on either side of it in its scan: through a window or an open door the scanner saw
-        the frame, not what lies beyond (fr079's and the Intel lab's windows had put 10 m of
+        the frame, not what lies beyond (fr079's and the Intel lab's windows would put 10 m of
         free space all round the building). A scan without a hit keeps its reach. A
         full-circle scan's polygon is its end points alone (the origin lies inside). Worked
         out :data:`BLOCK` scans at a time, so that only the result is of the whole map's size.

@@ -12,9 +12,9 @@ beam agrees with such a view when both read within :data:`AGREE` of each other, 
 return.
 
 In the simulated warehouse, along aisles whose bays all score 1.000 by their end points, the
-right place's stored views contradicted 0-1.2 % of the live beams (mean over a run's first 80
+right place's stored views contradict 0-1.2 % of the live beams (mean over a run's first 80
 scans) and the closest look-alike's 2.3-28 % in seven of nine runs whose start or kidnap the
-world tells apart, 0.4 and 0.9 % in the other two (docs/benchmarks.md, twenty-second session).
+world tells apart, 0.4 and 0.9 % in the other two.
 A place the mapper never passed, or passed facing another way, has no view: nothing is known
 of it, and nothing is concluded from it.
 """
@@ -36,9 +36,9 @@ AGREE = 0.1  # a live beam agrees with a view when the two ranges are this close
 # ... or when it reads what a beam this many either side of it would in the view: a wall seen
 # at a grazing angle from a few centimetres aside moves its ranges by decimetres (the simulated
 # corridor, seed 110's kidnap, scan 112: the right place's nearest stored scan, 6 cm aside,
-# contradicted 30 beams by 0.1-0.3 m; with one beam either side the best stored scan nearby, 1).
-# In the warehouse's runs the right places' shares fell by half or more so, the look-alikes' by
-# a fifth to two thirds (docs/benchmarks.md, twenty-second session).
+# contradicts 30 beams by 0.1-0.3 m; with one beam either side the best stored scan nearby, 1).
+# In the warehouse's runs this halves the right places' shares or more, the look-alikes' it
+# cuts by a fifth to two thirds.
 SPREAD = 1
 # Stored scans taken this near a place (m) and facing this close to it make its view ...
 NEAR_XY = 0.5
@@ -71,9 +71,8 @@ class SavedViews:
         (``poses`` ``(N, 3)``, map frame): the beams the view from the place contradicts, and
         those it knows, for the stored scan nearby that agrees best; (0, 0) where the map holds
         no view of the place. ``(N, 2)`` integers. (Many places a call, the places followed or
-        one place's past scans: a view at a time, the small arrays' overhead cost the search
-        half its speed in the simulated warehouse; docs/benchmarks.md, twenty-third
-        session.)"""
+        one place's past scans: a view at a time, the small arrays' overhead would cost the
+        search half its speed in the simulated warehouse.)"""
         ranges = np.asarray(ranges, dtype=np.float64).reshape(-1, self.geometry.num_beams)
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
         if len(ranges) != len(poses):
@@ -110,8 +109,8 @@ def _disagreements(points, hits, stored, rows, query, places, live, angle_min, i
     end point winning; a live beam agrees when it reads within :data:`AGREE` of the view's
     beam, or of one within :data:`SPREAD` beside it, or neither has a return. (In NumPy, a
     place's eight stored scans cost some thirty array operations of a few microseconds each:
-    tracking a place watched by its views ran at half the speed in the simulated worlds;
-    docs/benchmarks.md, twenty-seventh session.)"""
+    tracking a place watched by its views would run at half the speed in the simulated
+    worlds.)"""
     beams = points.shape[1]
     out = np.zeros((places.shape[0], 2), dtype=np.int64)
     best = np.full(places.shape[0], -1.0)
