@@ -34,6 +34,7 @@ LASER_OFFSET = np.array([0.145, 0.0, 0.0])
 
 class BreezySlamLog(LineLog):
     format_name = "BreezySLAM log"
+    scan_words = tuple(str(d).encode() for d in range(10))  # a line is a scan: numbers
 
     def _frames(self, lines: Iterator[tuple[int, str]]) -> Iterator[ScanFrame]:
         pose = np.zeros(3)  # robot (axle) pose in the odometry frame

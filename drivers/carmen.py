@@ -182,6 +182,8 @@ class CarmenLog(LineLog):
     poses are kept in :attr:`poses`, one per scan, to compare against (:meth:`reference`).
     """
 
+    scan_words = (b"FLASER", b"ROBOTLASER1", b"RAWLASER")
+
     format_name = "CARMEN log"
 
     def __init__(self, path: str | os.PathLike[str], *, strict: bool = False) -> None:

@@ -22,6 +22,7 @@ RATE_HZ = 10.0
 
 class DpSlamLog(LineLog):
     format_name = "DP-SLAM log"
+    scan_words = (b"Laser",)
 
     def _frames(self, lines: Iterator[tuple[int, str]]) -> Iterator[ScanFrame]:
         odom: np.ndarray | None = None

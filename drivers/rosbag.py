@@ -239,6 +239,11 @@ class RosBagLog(LineLog):
         self._odom: tuple[FloatArray, FloatArray] | None = None
         self._odom_problems: tuple[list[tuple[int, str]], int] = ([], 0)
 
+    @property
+    def length(self) -> int | None:
+        """The messages of the scan topic, as the bag's index counts them."""
+        return self.topics[self.chosen_scan][1]
+
     def notes(self) -> list[tuple[str, str]]:
         """The bag's topics, and which were chosen for scans and odometry."""
         out = [("topics", "")]

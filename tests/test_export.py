@@ -70,7 +70,9 @@ def test_ros_map_round_trip_and_file_form(tmp_path):
     assert raw.startswith(b"P5\n")
     back = read_ros_map(tmp_path / "map.yaml")
     np.testing.assert_array_equal(back.cells, g.cells)
-    assert back.resolution == g.resolution and back.origin == g.origin
+    assert back.resolution == g.resolution
+    np.testing.assert_allclose(back.origin, g.origin, rtol=0, atol=1e-9)  # to the nanometre
+    assert "- -0.3\n" in (tmp_path / "map.yaml").read_text()  # as a person writes it
     # The image's first row is the top of the map.
     H, W = g.shape
     first_row = np.frombuffer(raw[-H * W:][:W], dtype=np.uint8)

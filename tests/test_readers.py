@@ -264,3 +264,34 @@ def test_reading_a_long_log_does_not_hold_it_in_memory(tmp_path):
     n_long, m_long = peak(long_)
     assert (n_short, n_long) == (200, 4000)
     assert m_long < 1.5 * m_short + 200_000  # 20 times the scans, about the same memory
+
+
+@pytest.mark.parametrize("name", ["intel-excerpt.clf.gz", "fhw-excerpt.log.gz",
+                                  "killian-excerpt.g2o.zip", "loop5-excerpt.log.gz",
+                                  "exp1-excerpt.dat.gz", "demo-excerpt.bag"])
+def test_a_recording_knows_how_many_scans_it_holds_before_it_is_read(name):
+    log = open_recording(EXCERPTS / name)
+    assert log.length is not None and log.length == len(list(log)) > 0
+
+
+def test_scan_lines_are_counted_across_the_chunks_they_are_read_in(tmp_path):
+    from drivers.textlog import count_lines_starting
+
+    text = "".join(("FLASER 3 1 2 3\n" if k % 3 else "ODOM 0 0 0\n# FLASER in a comment\n")
+                   for k in range(200))
+    path = tmp_path / "run.clf"
+    path.write_text(text)
+    want = sum(line.startswith("FLASER") for line in text.splitlines())
+    for chunk in (1, 5, 6, 7, 13, 1 << 20):  # every cut of a line's head
+        assert count_lines_starting(path, (b"FLASER", b"ROBOTLASER1"), chunk=chunk) == want
+
+
+def test_a_damaged_gzip_log_counts_the_scans_before_the_damage(tmp_path):
+    import gzip
+
+    from drivers.textlog import count_lines_starting
+
+    whole = gzip.compress(b"FLASER 1 1\n" * 5000)
+    path = tmp_path / "cut.clf.gz"
+    path.write_bytes(whole[: len(whole) // 2])
+    assert 0 < count_lines_starting(path, (b"FLASER",)) < 5000

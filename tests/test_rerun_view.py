@@ -86,7 +86,7 @@ def test_localizing_shows_the_saved_map_the_places_followed_and_the_pose(tmp_pat
     assert main(["localize", "--map", str((tmp_path / "m" / "latest").resolve()), "lab",
                  "--seed", "3", "--scans", "60", "--out", str(tmp_path / "l"), "--rerun",
                  str(rrd), "-q"]) == 0
-    metrics = json.loads((tmp_path / "l" / "latest" / "metrics.json").read_text())
+    metrics = json.loads((tmp_path / "l" / "latest-localization" / "metrics.json").read_text())
     rows = defaultdict(int)
     for ch in chunks(rrd):
         rows[str(ch.entity_path)] += ch.num_rows

@@ -119,7 +119,9 @@ def write_ros_map(yaml_path: str | Path, grid: Grid) -> Path:
     meta = {
         "image": pgm.name,
         "resolution": grid.resolution,
-        "origin": [grid.origin[0], grid.origin[1], 0.0],
+        # A whole number of cells in floating point (-217 * 0.05 = -10.850000000000001):
+        # written to the nanometre, as a person would write it.
+        "origin": [round(float(grid.origin[0]), 9), round(float(grid.origin[1]), 9), 0.0],
         "negate": 0,
         "occupied_thresh": 0.65,
         "free_thresh": 0.196,

@@ -50,11 +50,11 @@ def remove_if_empty(folder: Path) -> None:
         folder.rmdir()
 
 
-def link_latest(folder: Path) -> None:
-    """Point ``latest`` beside ``folder`` at it (once everything in it is written)."""
+def link_latest(folder: Path, name: str = "latest") -> None:
+    """Point the link ``name`` beside ``folder`` at it (once everything in it is written)."""
     root = folder.parent
-    link = root / "latest"
-    tmp = root / f".latest.{os.getpid()}"
+    link = root / name
+    tmp = root / f".{name}.{os.getpid()}"
     try:
         if tmp.is_symlink() or tmp.exists():
             tmp.unlink()

@@ -48,7 +48,9 @@ from vmp.source import Reference, SourceReport
 from vmp.tum import write_tum
 from vmp.types import FloatArray
 
-__all__ = ["Result", "export_all", "format_metrics"]
+__all__ = ["COMPILING_SHOWN", "Result", "export_all", "format_metrics"]
+
+COMPILING_SHOWN = 0.05  # seconds: less time compiling kernels is not worth a line
 
 
 @dataclass
@@ -66,6 +68,7 @@ class Result:
     report: SourceReport
     mapping_time: float  # seconds of the run loop and the final adjustment
     interrupted: str | None = None  # the signal that ended the run early, if one did
+    compiling_time: float = 0.0  # seconds of mapping_time spent compiling kernels (first run)
     _grids: dict[float, Grid] = field(default_factory=dict, repr=False)
     _polygons: FloatArray | None = field(default=None, repr=False)
 
@@ -107,7 +110,10 @@ class Result:
                 out[f"ATE vs {ref.label} (m)"] = self._ate(self.trajectory)
                 out[f"ATE of odometry vs {ref.label} (m)"] = self._ate(self.odometry)
         out["mapping time (s)"] = self.mapping_time
-        out["scans per second"] = self.scans / max(self.mapping_time, 1e-9)
+        if self.compiling_time > COMPILING_SHOWN:
+            out["compiling kernels (s)"] = self.compiling_time
+        out["scans per second"] = self.scans / max(self.mapping_time - self.compiling_time,
+                                                   1e-9)
         if self.scans > 1:
             out["data duration (s)"] = float(self.stamps.max() - self.stamps.min())
         if self.interrupted:
@@ -165,12 +171,59 @@ def export_all(out: Path, result: Result, resolution: float, free_space: Future)
                   {"what": "boundary of free space", "area_m2": round(geom.area, 3)})
 
 
-def format_metrics(metrics: dict) -> str:
-    """The metrics as an aligned two-column table."""
-    rows = [(k, v) for k, v in metrics.items() if k not in ("source", "version")]
-    width = max(len(k) for k, _ in rows)
+# What a run's table leads with, in this order, where the run has it: accuracy, size, time,
+# speed, loops. Everything else is grouped below it (with --verbose) and always in metrics.json.
+HEADLINE = (
+    "ATE (m)", "ATE odometry alone (m)", "error of localized poses, RMS (m)",
+    "error of localized poses, max (m)", "share of scans localized", "scans until localized",
+    "wrong fixes", "scans", "data duration (s)", "mapping time (s)", "localization time (s)",
+    "compiling kernels (s)", "scans per second", "tracking: scans per second",
+    "loop edges in the graph", "loop edges down-weighted", "milestones", "interrupted by",
+    "damaged")
+# The groups of the rest: a heading and the starts of its figures' names.
+GROUPS = (
+    ("source", ("bad ", "stamps running backwards", "map")),
+    ("scan odometry", ("scan odometry", "odometry delay")),
+    ("anchor matches", ("anchor matches", "milestone edges")),
+    ("signature matches", ("signature matches",)),
+    ("loop search", ("loop ", "graph adjustment")),
+    ("map", ("milestones recorded", "segments", "bytes per scan")),
+    ("localization", ("times localized", "scans ", "places searched", "localized scans")),
+)
+
+
+def _headline_key(key: str) -> bool:
+    return key in HEADLINE or key.startswith(("ATE vs ", "ATE of odometry vs "))
+
+
+def _group(key: str) -> str:
+    for heading, starts in GROUPS:
+        if key.startswith(starts):
+            return heading
+    return "other"
+
+
+def format_metrics(metrics: dict, verbose: bool = False) -> str:
+    """The metrics as an aligned two-column table: the headline figures first; with
+    ``verbose`` the others after them under the headings of their groups, else a line saying
+    how many more metrics.json holds."""
+    rows = {k: v for k, v in metrics.items() if k not in ("source", "version")}
+    head = [k for k in HEADLINE if k in rows] + [k for k in rows if _headline_key(k)
+                                                 and k not in HEADLINE]
+    rest = [k for k in rows if k not in head]
+    width = max((len(k) for k in (rows if verbose else head)), default=6)
     lines = [f"{'metric':<{width}}  value", f"{'-' * width}  -----"]
-    for k, v in rows:
-        text = f"{v:.4g}" if isinstance(v, float) else str(v)
-        lines.append(f"{k:<{width}}  {text}")
+    lines += [_row(k, rows[k], width) for k in head]
+    if verbose:
+        for heading in [g for g, _ in GROUPS] + ["other"]:
+            keys = [k for k in rest if _group(k) == heading]
+            if keys:
+                lines += ["", f"{heading}:"] + [_row(k, rows[k], width) for k in keys]
+    elif rest:
+        lines.append(f"({len(rest)} more figures in metrics.json; --verbose prints them)")
     return "\n".join(lines)
+
+
+def _row(key: str, value: object, width: int) -> str:
+    text = f"{value:.4g}" if isinstance(value, float) else str(value)
+    return f"{key:<{width}}  {text}"

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from milestones.jit import compile_seconds
 from vmp.checkpoint import Every, fingerprint, load_checkpoint, save_checkpoint
 from vmp.config import MappingConfig
 from vmp.errors import InputError
@@ -166,6 +167,7 @@ class MappingRun(StoppableRun):
                      Localizer(Places(self.saved.map, self.saved.milestones,
                                       self.saved.trajectory), self.config))
         started = time.perf_counter()
+        compiled_before = compile_seconds()
         saved_at = (started, len(stamps))  # when, and after how many scans, the last checkpoint
         frames = 0  # frames taken from the source
         try:
@@ -228,7 +230,8 @@ class MappingRun(StoppableRun):
         old_stamps, old_poses = s["old_stamps"], s["old_poses"]
         return Result(self.label, self.config, pipeline, np.r_[old_stamps, stamps], trajectory,
                       np.vstack([old_poses, *online]), np.vstack([old_poses, *odometry]),
-                      reference, self.source.report(), elapsed, self.interrupted)
+                      reference, self.source.report(), elapsed, self.interrupted,
+                      compiling_time=compile_seconds() - compiled_before)
 
     def _place(self, localizer: Localizer, frame: ScanFrame, geometry: BeamGeometry
                ) -> Pipeline | None:

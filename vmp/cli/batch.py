@@ -246,12 +246,11 @@ def _client(workers: int | None, scheduler: str | None):
 
     # Dask starts its worker processes with MALLOC_TRIM_THRESHOLD_=65536, which hands every
     # freed block above 64 KiB back to the system; the mapper allocates and frees such arrays
-    # for every scan, and each comes back with fresh page faults: office took 19.7 s instead
-    # of 17.7 s with it (one 'vmp map office' each way). Unset (None) for our workers; the
-    # other settings (one BLAS thread per worker) stay. Without a dashboard nobody sees the
+    # for every scan, and each comes back with fresh page faults (about a tenth of a run's
+    # time: docs/benchmarks.md, "vmp batch"). Unset (None) for our workers; the other
+    # settings (one BLAS thread per worker) stay. Without a dashboard nobody sees the
     # workers' sampling profiler, which wakes every 10 ms, nor needs the event loop's 20 ms
-    # ticks: both take the GIL from the mapping thread. Off, and ticking every second, 8 seeds
-    # of office took 39.1 and 39.8 s against 43.3 and 41.4 s (in turn; 6 % less CPU).
+    # ticks: both take the GIL from the mapping thread, so both are off.
     quiet = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
              "distributed.worker.profile.enabled": False,
              "distributed.admin.tick.interval": "1s"}
@@ -262,16 +261,21 @@ def _client(workers: int | None, scheduler: str | None):
 
 
 def run_batch(jobs: Sequence[Job], *, workers: int | None = None, scheduler: str | None = None,
-              serial: bool = False, on_row: Callable[[dict], None] | None = None
+              serial: bool = False, on_row: Callable[[dict], None] | None = None,
+              on_running: Callable[[list[Job]], None] | None = None
               ) -> tuple[list[dict | None], bool]:
     """Rows of every job, in the jobs' order (None for a job cancelled by Ctrl-C), and
     whether Ctrl-C cut the batch short. ``serial`` runs them here, one after another;
     otherwise each is a Dask task on ``scheduler`` or on a local cluster of ``workers``
-    processes. ``on_row`` is told of each row as it arrives."""
+    processes. ``on_row`` is told of each row as it arrives, ``on_running`` of the jobs
+    running now whenever that changes (checked every second; on a cluster, the first of the
+    jobs handed to the workers, as many as they have threads)."""
     rows: list[dict | None] = [None] * len(jobs)
     if serial:
         try:
             for i, job in enumerate(jobs):
+                if on_running is not None:
+                    on_running([job])
                 rows[i] = row = run_job(job)
                 if on_row is not None:
                     on_row(row)
@@ -281,20 +285,38 @@ def run_batch(jobs: Sequence[Job], *, workers: int | None = None, scheduler: str
             handled_interrupt()
             return rows, True
         return rows, False
-    from distributed import as_completed
+    from distributed import TimeoutError as DaskTimeout
+    from distributed import wait
 
     client, cluster = _client(workers, scheduler)
     futures = client.map(run_job, list(jobs), pure=False)
     where = {f.key: i for i, f in enumerate(futures)}
+    running: list[int] = []
     try:
-        for future in as_completed(futures):
-            i = where[future.key]
+        pending = set(futures)
+        while pending:
             try:
-                rows[i] = future.result()
-            except Exception as exc:  # the worker died under the task
-                rows[i] = dict(_row(jobs[i]), status=f"lost: {type(exc).__name__}: {exc}")
-            if on_row is not None:
-                on_row(rows[i])
+                done, pending = wait(pending, timeout=1.0, return_when="FIRST_COMPLETED")
+            except DaskTimeout:
+                done = set()
+            for future in sorted(done, key=lambda f: where[f.key]):
+                i = where[future.key]
+                try:
+                    rows[i] = future.result()
+                except Exception as exc:  # the worker died under the task
+                    rows[i] = dict(_row(jobs[i]), status=f"lost: {type(exc).__name__}: {exc}")
+                if on_row is not None:
+                    on_row(rows[i])
+            if on_running is not None and pending:
+                # A worker is handed more tasks than it has threads; it runs them in the
+                # order they were submitted, so the first of them, a thread each, run now.
+                threads = sum(w.get("nthreads", 1)
+                              for w in client.scheduler_info()["workers"].values())
+                now = sorted(where[k] for keys in client.processing().values() for k in keys
+                             if k in where and rows[where[k]] is None)[:threads]
+                if now != running:
+                    running = now
+                    on_running([jobs[i] for i in now])
         return rows, False
     except KeyboardInterrupt:
         handled_interrupt()
@@ -396,16 +418,24 @@ def run(args: argparse.Namespace) -> int:
             import distributed  # noqa: F401 - only to say how to install it
         except ImportError as exc:
             raise InputError(INSTALL) from exc
-    progress = Progress(len(jobs), "batch", unit="runs", enabled=False if args.quiet else None)
+    progress = Progress(len(jobs), "batch", unit="runs", enabled=False if args.quiet else None,
+                        tick=1.0)
+    running: list[str] = []
+    progress.activity = lambda: f"running {', '.join(running)}" if running else ""
 
     def arrived(row: dict) -> None:
+        if row["source"] in running:
+            running.remove(row["source"])
         if not row["status"].startswith("ok"):
             progress.status = f"last problem: {row['source']}"
         progress.update()
 
+    def now_running(now: list[Job]) -> None:
+        running[:] = [job.label for job in now]
+
     started = time.perf_counter()
     rows, cut = run_batch(jobs, workers=args.workers, scheduler=args.scheduler,
-                          serial=args.serial, on_row=arrived)
+                          serial=args.serial, on_row=arrived, on_running=now_running)
     progress.close()
     done = [r for r in rows if r is not None]
     table = write_table(done, args.out)

@@ -34,9 +34,13 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resolution", type=positive_float, default=0.05,
                    help="occupancy grid cell size in metres (default: 0.05)")
     p.add_argument("--rerun", metavar="TARGET",
-                   help="watch in Rerun: a .rrd file to save, 'spawn' (native viewer) or "
-                   "'serve' (web viewer on localhost)")
+                   help="watch in Rerun: a .rrd file to save (open it later with 'rerun "
+                   "FILE.rrd'; 'pip install rerun-sdk' gives the viewer), 'spawn' (the native "
+                   "viewer, now) or 'serve' (the web viewer on localhost; prints its address)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress, no table")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="print every figure of the run, grouped (default: the headline "
+                   "figures; metrics.json holds them all)")
 
 
 def mapping_config(path: Path | None) -> MappingConfig:
@@ -82,13 +86,14 @@ def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespac
     total = source.length if scans is None or source.length is None else min(scans,
                                                                               source.length)
     progress = Progress(total or scans, f"mapping {source.name}",
-                        enabled=False if args.quiet else None)
+                        enabled=False if args.quiet else None, tick=1.0)
     try:
         run = MappingRun(source, config, view, scans=scans, progress=progress, label=label,
                          saved=saved, checkpoint=out / CHECKPOINT if every else None,
                          every=every, resume=resume)
         result = run.run()
     except BaseException:
+        progress.close()
         remove_if_empty(out)  # nothing was mapped: no empty results folder
         raise
 
@@ -107,10 +112,11 @@ def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespac
 
 
 def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespace,
-           view, label: str, files: list[tuple[str, str]]) -> int:
-    """Write a run's results folder (``write``), point ``latest`` at it and tell the user;
-    returns the exit code (128 + the signal's number when one ended the run, or came while
-    writing, which waits until everything is written)."""
+           view, label: str, files: list[tuple[str, str]], link: str = "latest") -> int:
+    """Write a run's results folder (``write``), point the link ``link`` beside it at it and
+    tell the user; returns the exit code (128 + the signal's number when one ended the run,
+    or came while writing, which waits until everything is written). ``latest`` is the link
+    to the newest map: a run that makes none names another link."""
     from vmp.folders import link_latest, mark_complete
     from vmp.results import format_metrics
     from vmp.run import stop_on_signals
@@ -119,16 +125,22 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
     with stop_on_signals(late.append):
         metrics = write()
         mark_complete(out)
-        link_latest(out)
+        link_latest(out, link)
     summary = result.report.summary(label)
     if summary and (not args.quiet or result.report.damaged):  # damage is never kept quiet
         print(summary, file=sys.stderr)
     if not args.quiet:
-        print(format_metrics(metrics))
+        print(format_metrics(metrics, verbose=args.verbose))
         state = f"interrupted by {result.interrupted}; " if result.interrupted else ""
-        print(f"\n{state}results in {out} (also {args.out / 'latest'}):")
+        print(f"\n{state}results in {out} (also {args.out / link}):")
+        written = {name for _, name in files}
+        files = files + [(_WHAT.get(p.name, "other"), p.name) for p in sorted(out.iterdir())
+                         if p.is_file() and p.name not in written
+                         and not any(n.startswith(p.name + " ") for n in written)
+                         and p.name not in _PART_OF]
+        width = max(len(what) for what, _ in files)
         for what, name in files:
-            print(f"  {what:<10}  {out / name}")
+            print(f"  {what:<{width}}  {out / name}")
     elif result.interrupted:
         print(f"vmp: interrupted by {result.interrupted} after {result.scans} scans; "
               f"results in {out}", file=sys.stderr)
@@ -138,6 +150,15 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
         view.close()
     ended = result.interrupted or (late[0] if late else None)
     return 128 + signal.Signals[ended].value if ended else 0
+
+
+# What the files of a results folder hold, for the list printed at the end of a run.
+_WHAT = {"trajectory.tum": "trajectory", "online.tum": "online", "odometry.tum": "odometry",
+         "ground_truth.tum": "truth", "reference.tum": "reference", "map.vmpmap": "map",
+         "milestones.npz": "milestones", "contours.geojson": "contours", "graph.json": "graph",
+         "config.yaml": "config", "metrics.json": "metrics", "states.csv": "states",
+         "live.clf": "recording"}
+_PART_OF = {"grid.pgm", "grid.png", "grid.npy"}  # listed with grid.yaml
 
 
 def warn_if_incomplete(path: Path) -> None:

@@ -22,9 +22,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         epilog="examples:\n  vmp evaluate results/latest --ground-truth office.tum\n"
         "  vmp evaluate results/latest --relations ../shared/data/intel/intel.relations\n",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    ev.add_argument("result", type=Path, help="results folder or TUM trajectory")
-    ev.add_argument("--ground-truth", type=Path, metavar="TUM")
-    ev.add_argument("--relations", type=Path, metavar="FILE")
+    ev.add_argument("result", type=Path, help="a results folder (its trajectory.tum is "
+                    "scored) or a TUM trajectory file")
+    ev.add_argument("--ground-truth", type=Path, metavar="TUM",
+                    help="true poses as a TUM file (t x y z qx qy qz qw), paired with the "
+                    "trajectory's by stamp: ATE and RPE (a simulated run writes its own as "
+                    "ground_truth.tum)")
+    ev.add_argument("--relations", type=Path, metavar="FILE",
+                    help="Kuemmerle et al.'s relations file of the log (lines 'FIXED t1 t2 dx "
+                    "dy 0 0 0 dtheta'): the mean and spread of the relation errors")
     ev.add_argument("--delta", type=positive_int, default=1,
                     help="RPE frame distance (default 1)")
     ev.set_defaults(run=run)

@@ -16,7 +16,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "field of view, maximum range, duration, whether it has odometry, and its bad lines.",
         epilog="examples:\n  vmp info ../shared/data/intel/intel-first5505.clf.gz\n",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    inf.add_argument("recording", type=Path)
+    inf.add_argument("recording", type=Path, help="a recording: CARMEN log (.clf, .log, "
+                     ".gz, g2o .zip), DP-SLAM or BreezySLAM log, ROS 1 bag, ROS 2 bag folder or "
+                     "MCAP file")
     inf.add_argument("--format", choices=["carmen", "dpslam", "breezyslam", "rosbag"],
                      help="recording format (default: detected from the content)")
     inf.add_argument("--scan-topic", help="ROS bags: the LaserScan topic (default: the first)")

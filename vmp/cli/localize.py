@@ -38,6 +38,9 @@ The trajectory holds the localized scans, in the saved map's frame. A map made b
 """
 
 
+LINK = "latest-localization"  # the newest localization's folder ('latest' is the newest map)
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     lc = sub.add_parser(
         "localize", help="localize in a saved map from no initial pose, then track",
@@ -46,7 +49,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "branch-and-bound search and ICP against the submaps there verify them, and the "
         "robot is localized only when one place is clearly better than every other. Then "
         "it is tracked against the map, and searched for again when the scans stop fitting. "
-        "Writes a dated results folder (trajectory.tum, states.csv, metrics.json).",
+        "Writes a dated results folder (trajectory.tum, states.csv, metrics.json) and "
+        f"points '{LINK}' beside it at it ('latest' stays the newest map).",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     lc.add_argument("--map", required=True, type=Path, metavar="RESULT",
                     help="results folder of 'vmp map' (or its map.vmpmap)")
@@ -115,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
             source.shutdown()
     return finish(result, lambda: result.write(out), out, args, view, label, [
         ("trajectory", "trajectory.tum (localized scans, the map's frame)"),
-        ("states", "states.csv")])
+        ("states", "states.csv")], link=LINK)
 
 
 def _localize(saved, source, config, view, args, label, initial, out):
@@ -126,7 +130,7 @@ def _localize(saved, source, config, view, args, label, initial, out):
     total = source.length if args.scans is None or source.length is None else min(
         args.scans, source.length)
     progress = Progress(total or args.scans, f"localizing {source.name}",
-                        enabled=False if args.quiet else None)
+                        enabled=False if args.quiet else None, tick=1.0)
     try:
         run = LocalizationRun(saved, source, config, view, map_path=str(args.map),
                               scans=args.scans, initial_pose=initial, progress=progress,
