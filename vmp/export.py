@@ -245,11 +245,10 @@ def _union_pieces(polygons: FloatArray, grid_size: float) -> shapely.Geometry:
     ``grid_size``.
 
     Beams along a wall end on one line: Douglas-Peucker within the snapping grid keeps a
-    182-vertex Intel scan to 69 vertices on average, and the union of the Intel part's 5,505
-    scans took 5.5 s instead of 8.7 s on one core, its area within 0.04 m^2 of 646 m^2. The
+    182-vertex Intel scan to 69 vertices on average and makes the union of the Intel part's
+    scans about 1.6 times as fast on one core, its area within 0.04 m^2 of 646 m^2. The
     pieces are united in floating point and only their union snapped: snap-rounding every
-    piece's union took twice the CPU (the Intel part 4.6 against 2.3 s, ACES 8.2 against 4.5,
-    fr079 10.2 against 5.5, office 2.4 against 1.3) for a boundary within 2.4 mm of it on
+    piece's union would take about twice the CPU for a boundary within 2.4 mm of it on
     average (their symmetric difference over the boundary's length). The simplification need
     not preserve topology (a quarter of its cost): a scan polygon is a star around its origin
     and came out invalid in none of 100,000 random ones, but a scan taken a centimetre from
