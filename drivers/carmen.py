@@ -34,7 +34,7 @@ from typing import IO
 
 import numpy as np
 
-from drivers.textlog import LineLog
+from drivers.textlog import DAMAGE, LineLog, open_text
 from vmp import __version__
 from vmp.fileio import atomic_write
 from vmp.source import Reference, SourceReport, stack_reference
@@ -172,8 +172,11 @@ class CarmenLog(LineLog):
     gets the pose of the ODOM lines interpolated to its stamp (a log without ODOM lines gives
     scans without odometry). A FLASER scan whose odometry is exactly the last ODOM line's pose,
     stamped otherwise (ACES's logger copies it into every scan, up to 0.19 s old at the
-    scan's stamp), gets the ODOM lines' pose interpolated to its own stamp too; one stamped
-    with it keeps its own (:class:`CarmenWriter` writes them so, and several scans of a live run
+    scan's stamp), gets the ODOM lines' pose interpolated to its own stamp too, where the ODOM
+    lines' stamps say when their poses were taken: in a log whose ODOM stamps run backwards
+    anywhere (the Intel recording's come in bursts, stamped on arrival) they do not, and every
+    FLASER scan keeps its own pose (see :meth:`odometry_stamped`); one stamped with it keeps its
+    own (:class:`CarmenWriter` writes them so, and several scans of a live run
     can share a stamp, each with the odometry it was mapped with); a logger that interpolates itself
     (fr079's) writes poses between the ODOM lines, which are kept. In a GMapping output log
     (one with ``NEFF`` lines, like the corrected Radish logs; they follow its first scan) the
@@ -192,6 +195,31 @@ class CarmenLog(LineLog):
         self.poses: list[tuple[float, np.ndarray]] = []
         self.gmapping = False
         self.unknown_increments = 0
+        self._odometry_stamped: bool | None = None
+
+    def odometry_stamped(self) -> bool:
+        """Whether the log's ODOM stamps tell when their poses were taken: they never run
+        backwards (read once, up to the first that does). Stamps that run backwards were
+        written on arrival, in bursts: interpolating poses by them puts a scan where the robot
+        was at another time."""
+        if self._odometry_stamped is None:
+            self._odometry_stamped = True
+            last = -math.inf
+            try:
+                with open_text(self.path) as f:
+                    for line in f:
+                        if not line.startswith("ODOM"):
+                            continue
+                        odom = _odom_line(line.split())
+                        if odom is None:
+                            continue
+                        if odom[0] < last:
+                            self._odometry_stamped = False
+                            break
+                        last = odom[0]
+            except (OSError, *DAMAGE):
+                pass  # the pass that maps reads up to the damage and reports it
+        return self._odometry_stamped
 
     def reference(self) -> Reference | None:
         """GMapping's corrected poses, one per scan, in a GMapping output log (paired by
@@ -225,6 +253,7 @@ class CarmenLog(LineLog):
         prev: tuple[np.ndarray, np.ndarray] | None = None  # (corrected pose, rebuilt odom)
         self._odom_lines = 0  # ODOM lines since the last FLASER
         flasers = 0
+        stamped = self.odometry_stamped()
 
         def release(upto: float) -> Iterator[ScanFrame]:
             """The waiting scans stamped up to ``upto``, in order."""
@@ -277,6 +306,7 @@ class CarmenLog(LineLog):
                 continue
             if kind == "FLASER" and frame.odom is not None:
                 stale = (not self.gmapping and flasers >= NOT_GMAPPING and bool(odom_p)
+                         and stamped
                          and frame.stamp != odom_t[-1]
                          and np.array_equal(frame.odom, odom_p[-1]))
                 flasers += 1

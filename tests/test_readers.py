@@ -238,6 +238,24 @@ def test_flaser_scans_that_copy_the_last_odom_line_are_read_at_their_stamp(tmp_p
     np.testing.assert_allclose(xs[3:], [3.5, 4.5, 5.5, 5.75, 6.0])
 
 
+def test_flaser_scans_keep_their_pose_where_the_odom_stamps_run_backwards(tmp_path):
+    """The Intel recording's ODOM lines are stamped on arrival, in bursts, some stamps running
+    backwards: they do not say when their poses were taken, so scans that copy the last ODOM
+    line's pose keep it rather than take the pose interpolated at their stamp."""
+    from drivers.carmen import CarmenLog
+
+    lines = ""
+    for k in range(6):  # as the test above, but one ODOM line stamped before the one before it
+        stamp = float(k) if k != 2 else 0.9
+        lines += _odom((k, 0, 0), stamp) + _flaser((k, 0, 0), k + 0.5)
+    log = tmp_path / "bursts.log"
+    log.write_text(lines)
+    reader = CarmenLog(log)
+    frames = list(reader)
+    assert not reader.odometry_stamped()
+    np.testing.assert_allclose([float(f.odom[0]) for f in frames], [0, 1, 2, 3, 4, 5])
+
+
 def test_reading_a_long_log_does_not_hold_it_in_memory(tmp_path):
     """Peak memory while iterating a log does not grow with its length (lines are streamed)."""
     import gzip
