@@ -184,11 +184,12 @@ HEADLINE = (
 GROUPS = (
     ("source", ("bad ", "stamps running backwards", "map")),
     ("scan odometry", ("scan odometry", "odometry delay")),
-    ("anchor matches", ("anchor matches", "milestone edges")),
+    ("anchor matches", ("anchor matches", "milestone edges", "scans not matched")),
     ("signature matches", ("signature matches",)),
     ("loop search", ("loop ", "graph adjustment")),
     ("map", ("milestones recorded", "segments", "bytes per scan")),
-    ("localization", ("times localized", "scans ", "places searched", "localized scans")),
+    ("localization", ("times localized", "scans lost", "scans ambiguous", "scans standing",
+                      "places searched", "localized scans")),
 )
 
 
