@@ -186,3 +186,20 @@ def test_ctrl_c_inside_code_run_by_exec_still_ends_with_130(tmp_path):
                           text=True, timeout=120, env=env)
     assert done.returncode == 130, done.stderr
     assert "vmp scenarios: interrupted" in done.stderr
+
+
+def test_output_to_a_reader_that_went_away_ends_quietly(monkeypatch, capsys):
+    # 'vmp scenarios | head -1': the pipe's reader is gone before the command writes.
+    import os
+    import signal
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    gone = os.fdopen(write_end, "w")
+    monkeypatch.setattr("sys.stdout", gone)
+    try:
+        assert main(["scenarios"]) == 128 + signal.SIGPIPE.value
+    finally:
+        monkeypatch.undo()
+        gone.close()
+    assert capsys.readouterr().err == ""

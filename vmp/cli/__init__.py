@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -32,10 +33,18 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         on_first_compile(say)  # the first run after an install compiles for a while
     try:
-        return int(args.run(args))
+        code = int(args.run(args))
+        sys.stdout.flush()  # here, where a reader gone away is told apart (below)
+        return code
     except InputError as exc:
         print(f"vmp {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # The reader of the output went away ('vmp evaluate ... | head -1'): as a Unix tool
+        # does, stop without a word. Standard output is pointed at nothing, so that Python's
+        # flush at exit does not fail on it again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + signal.SIGPIPE.value
     except OSError as exc:
         name = f": {exc.filename}" if getattr(exc, "filename", None) else ""
         print(f"vmp {args.command}: error: {exc.strerror or exc}{name}", file=sys.stderr)
