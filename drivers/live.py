@@ -16,7 +16,8 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from drivers.carmen import CarmenWriter, parse_laser_line
+from drivers.carmen import parse_laser_line
+from drivers.carmen_writer import CarmenWriter
 from drivers.devices.pty_device import PtyDevice
 from drivers.pose_feed import PoseFeed
 from drivers.serial_scanner import ScanDriver

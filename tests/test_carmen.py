@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from drivers.carmen import read_carmen, write_carmen
+from drivers.carmen import read_carmen
+from drivers.carmen_writer import write_carmen
 from drivers.scenario import load_scenario, parse_scenario
 from drivers.simulator import Simulator
 from vmp.errors import InputError

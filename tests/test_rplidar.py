@@ -352,7 +352,7 @@ def test_corrupted_session_measures_what_gets_through():
     assert t["intact_delivered"] >= 0.99 * t["intact"]
     # No checksum: single flips in distance bits pass. The share is a rate, not a constant:
     # bench/serial_integrity.py measures 185 of 1,028 corrupted turns (18 %). Each turn's
-    # damage is drawn for it alone, and this session gives 16 of 123 in every run.
+    # damage is drawn for it alone, so this seeded device run gives 16 of 123 every time.
     assert t["wrong"] <= 0.25 * t["corrupted"]
     # never a garbled turn: a few beams, one per node whose distance bits were hit (or that
     # was lost where a near point's parallax allowance covers the gap)

@@ -48,7 +48,7 @@ __all__ = ["BackEnd", "corrections_agree", "fuse"]
 # later corrects the robot's pose the same way, within this distance and turn. (Four, not
 # three: merging ACES's halves, two finds four milestones and 4.1 m apart agree on a 2.7 m
 # correction to a few centimetres, the searches between them refining poorly; with three the
-# loop between the sessions stays open, 0.0476 m against 0.0355 in one go and 0.0360 with
+# loop between the halves stays open, 0.0476 m against 0.0355 in one go and 0.0360 with
 # four.)
 CONFIRM_WITHIN = 4
 CONFIRM_XY = 0.3

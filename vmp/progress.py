@@ -15,9 +15,9 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import IO, TypeVar
 
-from milestones.jit import compile_seconds, compiling
+from milestones.jit import compile_seconds, compiling, on_first_compile
 
-__all__ = ["Progress", "duration", "say"]
+__all__ = ["Progress", "duration"]
 
 T = TypeVar("T")
 
@@ -42,7 +42,8 @@ class Progress:
     ``enabled``: None shows it in place on a terminal and as plain lines elsewhere; False
     shows nothing. ``tick``: also redraw every that many seconds from a thread of its own
     (for work whose items take long: a batch of runs). :attr:`status` is appended to the line;
-    :attr:`activity`, when set, is called at each draw for what is under way.
+    :attr:`activity`, when set, is called at each draw for what is under way. While it is
+    shown, the first kernel compiled in the process is told on a line above it.
     """
 
     def __init__(self, total: int | None, label: str, unit: str = "scans",
@@ -66,7 +67,7 @@ class Progress:
         if self.enabled and self.live:
             self._draw(time.perf_counter())
         if self.enabled:
-            _SHOWN.append(self)
+            on_first_compile(self.note)  # a first run after an install compiles for a while
         if self.enabled and tick:
             self._ticker = threading.Thread(target=self._tick, args=(tick,), daemon=True,
                                             name="progress")
@@ -170,8 +171,7 @@ class Progress:
         self._closed = True
         if not self.enabled:
             return
-        if self in _SHOWN:
-            _SHOWN.remove(self)
+        on_first_compile(None)
         if self.live:
             self._draw(time.perf_counter())
             with self._lock:
@@ -188,18 +188,6 @@ class Progress:
                 self.update()
         finally:
             self.close()
-
-
-_SHOWN: list[Progress] = []  # the progress lines shown now, the newest last
-
-
-def say(text: str) -> None:
-    """``text`` on standard error, on a line of its own above the progress line shown, if
-    any (what a command tells while it works: kernels compiling, for one)."""
-    if _SHOWN:
-        _SHOWN[-1].note(text)
-    else:
-        print(text, file=sys.stderr, flush=True)
 
 
 def _is_terminal(stream: IO[str]) -> bool:

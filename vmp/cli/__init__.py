@@ -14,10 +14,6 @@ from vmp.errors import InputError
 
 __all__ = ["main"]
 
-# The commands that run compiled kernels (the others do not import Numba at all).
-COMPILING = frozenset({"map", "live", "localize", "merge", "export", "evaluate", "simulate",
-                       "batch"})
-
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``vmp ARGV``; returns the exit code (2: a user's mistake, 128 + N: signal N)."""
@@ -27,11 +23,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     previous = _terminate_as_interrupt()
-    if args.command in COMPILING and not getattr(args, "quiet", False):
-        from milestones.jit import on_first_compile
-        from vmp.progress import say
-
-        on_first_compile(say)  # the first run after an install compiles for a while
     try:
         code = int(args.run(args))
         sys.stdout.flush()  # here, where a reader gone away is told apart (below)

@@ -105,18 +105,15 @@ def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespac
             view.grid(grid.cells, grid.resolution, grid.origin)
         return metrics
 
-    return result, finish(result, write, out, args, view, label, [
-        ("trajectory", "trajectory.tum"), ("map", "map.vmpmap"),
-        ("grid", "grid.yaml (+ grid.pgm, grid.png, grid.npy)"),
-        ("contours", "contours.geojson"), ("graph", "graph.json")])
+    return result, finish(result, write, out, args, view, label)
 
 
 def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespace,
-           view, label: str, files: list[tuple[str, str]], link: str = "latest") -> int:
+           view, label: str, link: str = "latest") -> int:
     """Write a run's results folder (``write``), point the link ``link`` beside it at it and
-    tell the user; returns the exit code (128 + the signal's number when one ended the run,
-    or came while writing, which waits until everything is written). ``latest`` is the link
-    to the newest map: a run that makes none names another link."""
+    tell the user what it holds; returns the exit code (128 + the signal's number when one
+    ended the run, or came while writing, which waits until everything is written).
+    ``latest`` is the link to the newest map: a run that makes none names another link."""
     from vmp.folders import link_latest, mark_complete
     from vmp.results import format_metrics
     from vmp.run import stop_on_signals
@@ -133,14 +130,8 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
         print(format_metrics(metrics, verbose=args.verbose))
         state = f"interrupted by {result.interrupted}; " if result.interrupted else ""
         print(f"\n{state}results in {out} (also {args.out / link}):")
-        written = {name for _, name in files}
-        files = files + [(_WHAT.get(p.name, "other"), p.name) for p in sorted(out.iterdir())
-                         if p.is_file() and p.name not in written
-                         and not any(n.startswith(p.name + " ") for n in written)
-                         and p.name not in _PART_OF]
-        width = max(len(what) for what, _ in files)
-        for what, name in files:
-            print(f"  {what:<{width}}  {out / name}")
+        for line in _listing(out):
+            print(f"  {line}")
     elif result.interrupted:
         print(f"vmp: interrupted by {result.interrupted} after {result.scans} scans; "
               f"results in {out}", file=sys.stderr)
@@ -152,13 +143,16 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
     return 128 + signal.Signals[ended].value if ended else 0
 
 
-# What the files of a results folder hold, for the list printed at the end of a run.
-_WHAT = {"trajectory.tum": "trajectory", "online.tum": "online", "odometry.tum": "odometry",
-         "ground_truth.tum": "truth", "reference.tum": "reference", "map.vmpmap": "map",
-         "milestones.npz": "milestones", "contours.geojson": "contours", "graph.json": "graph",
-         "config.yaml": "config", "metrics.json": "metrics", "states.csv": "states",
-         "live.clf": "recording"}
-_PART_OF = {"grid.pgm", "grid.png", "grid.npy"}  # listed with grid.yaml
+def _listing(folder: Path) -> list[str]:
+    """Every file of a results folder, a line each, those of one name in other forms on the
+    line of the first (``grid.npy (+ grid.pgm, grid.png, grid.yaml)``)."""
+    by_stem: dict[str, list[str]] = {}
+    for path in sorted(p for p in folder.iterdir() if p.is_file()):
+        by_stem.setdefault(path.name.split(".")[0], []).append(path.name)
+    width = max((len(stem) for stem in by_stem), default=0)
+    return [f"{stem:<{width}}  {folder / names[0]}"
+            + (f" (+ {', '.join(names[1:])})" if names[1:] else "")
+            for stem, names in by_stem.items()]
 
 
 def warn_if_incomplete(path: Path) -> None:

@@ -117,9 +117,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if live:
             source.shutdown()
-    return finish(result, lambda: result.write(out), out, args, view, label, [
-        ("trajectory", "trajectory.tum (localized scans, the map's frame)"),
-        ("states", "states.csv")], link=LINK)
+    return finish(result, lambda: result.write(out), out, args, view, label, link=LINK)
 
 
 def _localize(saved, source, config, view, args, label, initial, out):

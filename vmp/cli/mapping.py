@@ -28,7 +28,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "  vmp map ../shared/data/intel/intel-first5505.clf.gz\n"
         "  vmp map corridor --no-milestones          # odometry and scan matching only\n"
         "  vmp map office --config my.yaml           # see results/latest/config.yaml\n"
-        "  vmp map run2.clf --continue results/run1-20261201-101500   # a second session\n",
+        "  vmp map run2.clf --continue results/run1-20261201-101500   # map on in a saved map\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     mp.add_argument("source", help="scenario name, scenario YAML, or a recording: CARMEN log "

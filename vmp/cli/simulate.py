@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from drivers.carmen import write_carmen
+    from drivers.carmen_writer import write_carmen
     from drivers.scenario import load_scenario
     from drivers.simulator import Simulator
     from vmp.progress import Progress
