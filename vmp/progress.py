@@ -39,20 +39,20 @@ def duration(seconds: float) -> str:
 class Progress:
     """Count the items of a long job and show how far it is.
 
-    ``enabled``: None shows it in place on a terminal and as plain lines elsewhere; False
-    shows nothing. ``tick``: also redraw every that many seconds from a thread of its own
+    Shown in place on a terminal and as plain lines elsewhere; ``enabled`` False shows
+    nothing. ``tick``: also redraw every that many seconds from a thread of its own
     (for work whose items take long: a batch of runs). :attr:`status` is appended to the line;
     :attr:`activity`, when set, is called at each draw for what is under way. While it is
     shown, the first kernel compiled in the process is told on a line above it.
     """
 
     def __init__(self, total: int | None, label: str, unit: str = "scans",
-                 stream: IO[str] | None = None, enabled: bool | None = None,
+                 stream: IO[str] | None = None, enabled: bool = True,
                  tick: float | None = None) -> None:
         self.total, self.label, self.unit = total, label, unit
         self.stream = stream if stream is not None else sys.stderr
         self.live = _is_terminal(self.stream)
-        self.enabled = True if enabled is None else enabled
+        self.enabled = enabled
         self.done = 0
         self.status = ""  # appended to the line (errors so far, for instance)
         self.activity: Callable[[], str] | None = None
@@ -63,15 +63,13 @@ class Progress:
         self._lines = 0  # plain lines written
         self._lock = threading.Lock()
         self._closed = False
-        self._ticker: threading.Thread | None = None
         if self.enabled and self.live:
             self._draw(time.perf_counter())
         if self.enabled:
             on_first_compile(self.note)  # a first run after an install compiles for a while
         if self.enabled and tick:
-            self._ticker = threading.Thread(target=self._tick, args=(tick,), daemon=True,
-                                            name="progress")
-            self._ticker.start()
+            threading.Thread(target=self._tick, args=(tick,), daemon=True,
+                             name="progress").start()
 
     @property
     def elapsed(self) -> float:

@@ -418,7 +418,7 @@ def run(args: argparse.Namespace) -> int:
             import distributed  # noqa: F401 - only to say how to install it
         except ImportError as exc:
             raise InputError(INSTALL) from exc
-    progress = Progress(len(jobs), "batch", unit="runs", enabled=False if args.quiet else None,
+    progress = Progress(len(jobs), "batch", unit="runs", enabled=not args.quiet,
                         tick=1.0)
     running: list[str] = []
     progress.activity = lambda: f"running {', '.join(running)}" if running else ""

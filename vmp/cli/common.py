@@ -86,7 +86,7 @@ def map_and_write(source: Source, config: MappingConfig, args: argparse.Namespac
     total = source.length if scans is None or source.length is None else min(scans,
                                                                               source.length)
     progress = Progress(total or scans, f"mapping {source.name}",
-                        enabled=False if args.quiet else None, tick=1.0)
+                        enabled=not args.quiet, tick=1.0)
     try:
         run = MappingRun(source, config, view, scans=scans, progress=progress, label=label,
                          saved=saved, checkpoint=out / CHECKPOINT if every else None,

@@ -128,7 +128,7 @@ def _localize(saved, source, config, view, args, label, initial, out):
     total = source.length if args.scans is None or source.length is None else min(
         args.scans, source.length)
     progress = Progress(total or args.scans, f"localizing {source.name}",
-                        enabled=False if args.quiet else None, tick=1.0)
+                        enabled=not args.quiet, tick=1.0)
     try:
         run = LocalizationRun(saved, source, config, view, map_path=str(args.map),
                               scans=args.scans, initial_pose=initial, progress=progress,

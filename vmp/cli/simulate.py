@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     if out.resolve() == gt.resolve():
         raise InputError(f"--out and --ground-truth name the same file: {out}")
     progress = Progress(len(sim), f"simulating {scenario.name}",
-                        enabled=False if args.quiet else None)
+                        enabled=not args.quiet)
     ended: list[str] = []  # the signal that ended the run early: the scans so far are written
 
     def stop(name: str) -> None:
