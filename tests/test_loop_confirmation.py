@@ -1,4 +1,5 @@
-"""A loop the search finds joins the graph only when the next find corrects the map the same way."""
+"""A loop the search finds joins the graph only when the next find corrects the map the same way,
+and no other pair of recent finds puts it elsewhere."""
 
 import math
 from collections import Counter
@@ -80,3 +81,34 @@ def test_finds_that_disagree_close_nothing():
                                pose) is None
     assert _loops(back) == []
     assert back.stats["loop finds awaiting confirmation"] == 2
+
+
+def test_one_stray_find_beside_an_agreeing_pair_does_not_hold_the_loop_back():
+    back = _backend(40)
+    pose = np.array([20.0, 1.0, 0.2])
+    right, stray = [0.5, -0.3, 0.05], [0.5 + 7.5, -0.3, 0.05]
+    back.anchor = 35
+    back.close_in_place([_find(5, pose, right), _find(9, pose, stray)], pose)
+    back.anchor = 36
+    assert back.close_in_place([_find(14, pose, right)], pose) is not None
+    assert _loops(back) == [(35, 5), (36, 14)]
+    assert back.stats["loop finds as well confirmed elsewhere"] == 0
+
+
+def test_a_pair_of_finds_waits_while_another_pair_puts_the_map_elsewhere():
+    # Two searches in a row find one place, the next two a stretch of corridor 7.5 m along
+    # (ACES with the wheels' heading drifting): each pair agrees, which place the robot came
+    # back to is a guess.
+    back = _backend(40)
+    pose = np.array([20.0, 1.0, 0.2])
+    right, along = [0.5, -0.3, 0.05], [0.5 + 7.5, -0.3, 0.05]
+    # The first search finds the right place; the second finds it and the look-alike (the
+    # first of its finds is the look-alike, so the right find waits behind it).
+    back.anchor = 36
+    back.close_in_place([_find(5, pose, right)], pose)
+    back.anchor = 37
+    back.close_in_place([_find(3, pose, along), _find(14, pose, right)], pose)
+    back.anchor = 38  # the next search confirms the look-alike, but the right pair stands
+    assert back.close_in_place([_find(17, pose, along)], pose) is None
+    assert _loops(back) == []
+    assert back.stats["loop finds as well confirmed elsewhere"] == 1

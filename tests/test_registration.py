@@ -8,7 +8,7 @@ import pytest
 from drivers.scenario import load_scenario, parse_scenario
 from drivers.simulator import Simulator
 from vmp.config import RegistrationConfig
-from vmp.registration import Reference, fits, likelihood, register
+from vmp.registration import Reference, fits, fits_explained, likelihood, register
 from vmp.types import BeamGeometry, ScanFrame, relative
 
 SICK = BeamGeometry(181, -math.pi / 2, math.radians(1), 8.0)
@@ -85,6 +85,25 @@ def test_unrelated_scans_fit_poorly():
     reg = register(Reference(frame(r[0]).points()), frame(r[1]).points(), np.zeros(3))
     assert reg.inliers < 0.5 or reg.rms > 0.05
     assert not fits(reg, RegistrationConfig())
+
+
+def test_a_sparse_scan_placed_right_fits_by_the_points_it_explains_not_by_its_lines():
+    # A scan of posts and short wall stubs: few of its points have a clear line through their
+    # neighbours, so few find a line partner, though every one lies on a reference point (the
+    # share that falls with the beams' spacing: every second beam dropped, a long range).
+    rng = np.random.default_rng(2)
+    posts = rng.uniform(-6.0, 6.0, (60, 2))
+    stubs = np.concatenate([np.column_stack([np.linspace(0, 0.3, 4) + x, np.full(4, y)])
+                            for x, y in rng.uniform(-6.0, 6.0, (6, 2))])
+    scene = np.concatenate([posts, stubs])
+    reference = Reference(scene)
+    reg = register(reference, scene, np.array([0.02, -0.01, 0.005]), corners=False)
+    config = RegistrationConfig()
+    assert reg.inliers < config.min_inliers  # by its lines it would be refused
+    assert not fits(reg, config)
+    assert fits_explained(reference, reg, scene, config)
+    moved = register(reference, scene + [1.5, 0.7], np.zeros(3), corners=False)  # elsewhere
+    assert not fits_explained(reference, moved, scene + [1.5, 0.7], config)
 
 
 def test_likelihood_falls_off_beyond_the_flat_distance_and_is_zero_beyond_three_sigma():

@@ -113,6 +113,8 @@ class BackEnd:
         # A loop the search found, waiting for a second to agree: (anchor, milestone, z,
         # covariance, correction of the map frame).
         self._pending: tuple[int, int, FloatArray, FloatArray, FloatArray] | None = None
+        # Every loop the search found lately: (anchor, correction of the map frame).
+        self._finds: list[tuple[int, FloatArray]] = []
         # The path edge that recorded each milestone (see drift_along_path), and how many of
         # the graph's edges were looked at for them.
         self._record: dict[int, tuple[int, FloatArray, FloatArray]] | None = {}
@@ -362,6 +364,8 @@ class BackEnd:
         loop.
         """
         correction = compose(m.z, inverse(pose))  # what the find does to the map frame
+        self._finds = [f for f in self._finds if self.anchor - f[0] <= CONFIRM_WITHIN]
+        self._finds.append((self.anchor, correction))
         if self._pending is not None and self._pending[0] == self.anchor:
             # Another find of the same search: the same scan, in a submap that shares most
             # of its segments with the first one's (a milestone's neighbours are in both), is
@@ -376,12 +380,26 @@ class BackEnd:
         if not corrections_agree(pending[4], correction, pose):
             self.stats["loop finds awaiting confirmation"] += 1
             return False
+        if self._agreed_elsewhere(correction, pose):
+            self.stats["loop finds awaiting confirmation"] += 1
+            self.stats["loop finds as well confirmed elsewhere"] += 1
+            return False
         if pending[0] != self.anchor or pending[1] != m.milestone:
             self._add_edge(*pending[:4], "loop")
             self.stats["loop edges"] += 1
             self.stats["loop edges in place"] += 1
         self._pending = None
         return True
+
+    def _agreed_elsewhere(self, correction: FloatArray, pose: FloatArray) -> bool:
+        """Whether two of the recent finds, of two searches, agree on a correction of the map
+        frame other than ``correction``: then which of the two places the robot came back
+        to is a guess. (On ACES with the wheels' heading drifting 2 deg every 10 m, the
+        searches at two milestones in a row found the right place, and at the next two a
+        stretch of corridor 7.5 m along, each pair agreeing.)"""
+        others = [f for f in self._finds if not corrections_agree(f[1], correction, pose)]
+        return any(a[0] != b[0] and corrections_agree(a[1], b[1], pose)
+                   for k, a in enumerate(others) for b in others[k + 1:])
 
     def tie(self, new: int, old: int, reg: Registration) -> Edge:
         """A loop edge from milestone ``new`` to ``old``, where ``new``'s stored scan

@@ -39,7 +39,7 @@ FORMAT = "vmp-slam checkpoint"
 # last matched scan, and the loop search's look-up of a submap's segments; 6: the graph's
 # marginals keep the information's upper triangle; 7: a registration reference holds no k-d
 # tree).
-VERSION = 7
+VERSION = 8
 
 
 @dataclass(frozen=True)

@@ -47,13 +47,13 @@ class FrontEnd:
     """The filter's prediction from odometry and scan registration."""
 
     def __init__(self, config: MappingConfig, filtered: bool = True,
-                 stops_early: bool = False) -> None:
+                 stops_early: bool = False, by_all_points: bool = True) -> None:
         self.config = config
         # Without a filter of its own it only works out the increments (a localizer moves its
         # hypotheses' filters by them).
         self.filtered = filtered
         self.scan_odometry = ScanOdometry(config.scan_odometry, config.registration,
-                                          config.motion, stops_early)
+                                          config.motion, stops_early, by_all_points)
         self.filter: PoseFilter | None = None
         self._first = True  # no scan yet
         self.odom_pose = np.zeros(3)  # where odometry alone puts the robot

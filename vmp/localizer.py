@@ -348,7 +348,8 @@ class Localizer:
         # scan odometry (0.014 m mapped). Its ICP stops where its steps cycle (else 126 of
         # 1,535 on ACES's tracked half run to the cap, 27 % of that ICP's time) or no longer
         # change the fit.
-        self.front = FrontEnd(self.config, filtered=False, stops_early=True)
+        self.front = FrontEnd(self.config, filtered=False, stops_early=True,
+                              by_all_points=False)
         # The place trusted is registered against the map once it has moved or turned as far
         # as scan odometry goes before it takes a new keyframe (0.3 m or 10 deg by default);
         # in between, scan odometry carries it and each scan is scored where it is

@@ -94,7 +94,9 @@ class Pipeline:
         """Go on mapping a saved map from where a localizer found the robot: ``front`` is
         its front end (its filter at the robot's pose in the map's frame, with its
         covariance), ``place`` the saved milestone it was registered against. The next scan
-        records a milestone there, joined to ``place`` by a loop edge."""
+        records a milestone there, joined to ``place`` by a loop edge. From here on its scan
+        odometry judges fits as the mapper's does."""
+        front.scan_odometry.by_all_points = True
         self.front = front
         self._join = place
 
@@ -129,7 +131,12 @@ class Pipeline:
         else:
             self.stats["scans not matched (standing still)"] += 1
         if self.loops.due(self.back.anchor):
-            seen = {m.milestone for m in matches}
+            # A search's find stands beside the matcher's own match of its milestone only
+            # where that one was accepted: registered from a prediction metres off, the
+            # matcher's may fail where the search, over its window, finds the place (on ACES
+            # with the wheels' heading drifting, the right place's find was dropped so, and
+            # a stretch of corridor 7.5 m along closed the loop).
+            seen = {m.milestone for m in matches if m.accepted}
             finds = self.loops.search(frame, x, self.back.anchor, self.back.linked(), scan,
                                       self._drift(x, P, doubt))
             for find in finds:

@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from dataclasses import replace
 
 import numpy as np
 
 from milestones.manager import MilestoneManager
 from vmp.branch_bound import Match, SearchGrid, search
 from vmp.config import RegistrationConfig
-from vmp.registration import Reference, Registration, explained, fits, last_gate, likelihood
+from vmp.registration import Reference, Registration, fits_explained, likelihood
 from vmp.submaps import voxel_thin
 from vmp.types import FloatArray, inverse, transform_points
 from vmp.vector_map import VectorMap
@@ -187,10 +186,7 @@ def fits_map(reference: Reference, reg: Registration, points: FloatArray,
     walls: in the Intel part's half map a quarter of the points lie on one, and scans placed
     to a centimetre found partners for a fifth of their points, so that tracking never
     corrected the pose.)"""
-    if not np.isfinite(reg.rms):
-        return False
-    share = explained(reference, points, reg.pose, last_gate(reg.rms))
-    return fits(replace(reg, inliers=share), config)
+    return fits_explained(reference, reg, points, config)
 
 
 def samples_along(trajectory: FloatArray, step: float) -> FloatArray:

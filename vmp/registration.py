@@ -28,8 +28,8 @@ from vmp.icp_kernel import (
 )
 from vmp.types import FloatArray
 
-__all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "last_gate",
-           "likelihood", "register"]
+__all__ = ["MIN_POINTS", "Reference", "Registration", "explained", "fits", "fits_explained",
+           "last_gate", "likelihood", "register"]
 
 
 MIN_POINTS = 20  # a scan with fewer returns is neither registered nor matched
@@ -95,6 +95,16 @@ def fits(reg: Registration, config: RegistrationConfig) -> bool:
     """Whether a registration fits well enough to be used: a close fit of most points."""
     return bool(np.isfinite(reg.rms) and reg.rms <= config.max_rms
                 and reg.inliers >= config.min_inliers)
+
+
+def fits_explained(reference: Reference, reg: Registration, points: FloatArray,
+                   config: RegistrationConfig) -> bool:
+    """Whether a registration of ``points`` against ``reference`` fits: closely, and with
+    most of the points near a reference point, on a clear line or not."""
+    if not np.isfinite(reg.rms):
+        return False
+    share = explained(reference, points, reg.pose, last_gate(reg.rms))
+    return fits(replace(reg, inliers=share), config)
 
 
 def last_gate(rms: float) -> float:
