@@ -19,7 +19,8 @@ from vmp.errors import InputError
 from vmp.source import Reference, SourceReport
 from vmp.types import BeamGeometry, ScanFrame
 
-__all__ = ["DAMAGE", "MAX_LINE", "LineLog", "LineTooLong", "lines_of", "open_text"]
+__all__ = ["DAMAGE", "MAX_LINE", "LineLog", "LineTooLong", "OdometryJumps", "implausible",
+           "lines_of", "open_text"]
 
 # What reading a damaged gzip or zip container raises (a bad CRC or header, a cut-off stream,
 # a corrupt deflate block); gzip.BadGzipFile is an OSError.
@@ -34,6 +35,7 @@ MAX_LINE = 4 << 20
 # any ground vehicle that maps with a 2D laser (m/s; over at least a second, as stamps written
 # on arrival come in bursts), a heading of more turns than a robot makes in its life (rad).
 MAX_STAMP = 4.1e9
+MAX_SAID = 200  # characters of a bad line's problem kept
 MAX_SPEED = 50.0
 MAX_HEADING = 1e6
 
@@ -226,6 +228,8 @@ class LineLog:
         """Item ``no`` could not be used (``skip``) or is odd but kept (a stamp running
         backwards, a property of some recordings): recorded; with ``strict`` an unusable
         item raises :class:`InputError`."""
+        if len(what) > MAX_SAID:  # a decoder's message may quote a whole definition
+            what = what[:MAX_SAID] + " ..."
         if self.strict and skip:
             where = f"{self.path}:{no}" if self.item == "line" else f"{self.path}: {self.item} {no}"
             raise InputError(f"{where}: {what}")
@@ -265,9 +269,9 @@ class LineLog:
             raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
         with f:
             last_stamp = -float("inf")
-            odometry = _Odometry()
+            odometry = OdometryJumps()
             for frame in self._frames(self._lines(f)):
-                problem = _implausible(frame) or odometry.jump(frame)
+                problem = implausible(frame) or odometry.jump(frame)
                 if problem:
                     self._bad(self._line, f"{problem}; scan skipped")
                     continue
@@ -285,7 +289,7 @@ class LineLog:
         raise NotImplementedError
 
 
-def _implausible(frame: ScanFrame) -> str:
+def implausible(frame: ScanFrame) -> str:
     """What no recording holds in ``frame`` ("" when nothing): a stamp beyond
     :data:`MAX_STAMP`, an odometry pose beyond any building or a heading of
     :data:`MAX_HEADING` radians."""
@@ -299,7 +303,7 @@ def _implausible(frame: ScanFrame) -> str:
     return ""
 
 
-class _Odometry:
+class OdometryJumps:
     """Odometry jumps between scans: a scan whose odometry lies farther from both the last
     scan kept and the scan read before it than a robot drives at :data:`MAX_SPEED` is a damaged
     record (skipped); one that agrees with the scan before it, after a jump, is the wheels'

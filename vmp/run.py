@@ -13,6 +13,7 @@ ended it. A second signal aborts at once.
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 import time
@@ -43,8 +44,10 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 @contextlib.contextmanager
 def stop_on_signals(on_signal: Callable[[str], None]) -> Iterator[None]:
-    """Within the block, SIGINT and SIGTERM call ``on_signal(name)`` once; a second one raises
-    KeyboardInterrupt. Outside the main thread (where Python takes no signals) it does nothing.
+    """Within the block, SIGINT and SIGTERM call ``on_signal(name)`` once; later ones say,
+    once, that the results are being kept, and change nothing: a user pressing Ctrl-C again
+    and again must not lose what was mapped (aborting the writing would leave only a
+    partial folder). Outside the main thread (where Python takes no signals) it does nothing.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -52,10 +55,12 @@ def stop_on_signals(on_signal: Callable[[str], None]) -> Iterator[None]:
     seen: list[str] = []
 
     def handler(signum: int, _frame: object) -> None:
-        if seen:
-            raise KeyboardInterrupt
         seen.append(signal.Signals(signum).name)
-        on_signal(seen[0])
+        if len(seen) == 1:
+            on_signal(seen[0])
+        elif len(seen) == 2:
+            os.write(2, b"vmp: stopping after this scan and writing what was mapped; it is "
+                        b"kept (SIGKILL would lose what is not yet written)\n")
 
     previous = {s: signal.signal(s, handler) for s in SIGNALS}
     try:

@@ -135,6 +135,9 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
     elif result.interrupted:
         print(f"vmp: interrupted by {result.interrupted} after {result.scans} scans; "
               f"results in {out}", file=sys.stderr)
+    if late and not result.interrupted:
+        print(f"vmp: {late[0]} while the results were written: they were written in full, "
+              f"in {out}", file=sys.stderr)
     if view is not None:
         if args.rerun == "serve" and not result.interrupted:
             view.hold()
