@@ -68,6 +68,7 @@ class Tally:
     refused: int = 0
     tracebacks: int = 0
     hangs: int = 0
+    nonsense: int = 0  # read without complaint into values no file holds
     places: Counter = field(default_factory=Counter)  # "Type at file:line" -> count
     example: dict = field(default_factory=dict)  # place -> the case's seed
 
@@ -77,6 +78,7 @@ class Tally:
         self.refused += other.refused
         self.tracebacks += other.tracebacks
         self.hangs += other.hangs
+        self.nonsense += other.nonsense
         self.places.update(other.places)
         for k, v in other.example.items():
             self.example.setdefault(k, v)
@@ -233,11 +235,28 @@ TUM = b"""# t x y z qx qy qz qw
 
 
 # -- reading a file the way the command line does -------------------------------------------
+class Nonsense(Exception):
+    """A file read without complaint into values no recording or map holds."""
+
+
 def _read_recording(path: Path) -> None:
     from drivers.formats import open_recording
-    from vmp.survey import survey
+    from drivers.textlog import MAX_SPEED
 
-    survey(open_recording(path))
+    last = None
+    scans = 0
+    for frame in open_recording(path):
+        scans += 1
+        if last is not None and frame.odom is not None and last.odom is not None:
+            dt = max(abs(frame.stamp - last.stamp), 1.0)
+            if np.hypot(*(frame.odom[:2] - last.odom[:2])) > MAX_SPEED * dt:
+                raise Nonsense(f"odometry jumps {np.hypot(*(frame.odom[:2] - last.odom[:2])):.3g}"
+                               f" m in {dt:.3g} s")
+        if last is not None and abs(frame.stamp - last.stamp) > 86400.0 * 365:
+            raise Nonsense(f"stamps a year apart ({last.stamp:.6g}, {frame.stamp:.6g})")
+        last = frame
+    if not scans:
+        raise InputError(f"{path}: no laser scans")
 
 
 def _read_map(path: Path) -> None:
@@ -413,7 +432,11 @@ def _npz_mutation(data: bytes, rng: np.random.Generator) -> bytes:
     a = arrays[key]
     if key == "header":
         header = json.loads(a.tobytes().decode())
-        edited = _text_mutation(json.dumps(header, indent=0).encode(), rng)
+        if rng.integers(2):  # a field's value replaced, the JSON still sound
+            _edit_field(header, rng)
+            edited = json.dumps(header).encode()
+        else:
+            edited = _text_mutation(json.dumps(header, indent=0).encode(), rng)
         arrays[key] = np.frombuffer(edited, dtype=np.uint8)
     elif a.size and rng.integers(3) and a.dtype.kind in "fiu":
         a = a.copy()
@@ -429,17 +452,119 @@ def _npz_mutation(data: bytes, rng: np.random.Generator) -> bytes:
         arrays[key] = a
     else:  # a shape changed
         arrays[key] = a.reshape(-1)[: max(0, a.size - int(rng.integers(1, 4)))]
-    header = json.loads(arrays["header"].tobytes().decode()) if key != "header" else {}
-    if "checksum" in header:
-        header["checksum"] = checksum({k: v for k, v in arrays.items() if k != "header"})
+    try:  # an edited header that is still JSON gets a valid checksum too
+        header = json.loads(arrays["header"].tobytes().decode())
+    except (ValueError, UnicodeDecodeError):
+        header = {}
+    if isinstance(header, dict) and "checksum" in header:
+        with_header = header if header.get("version", 0) >= 3 else None
+        header["checksum"] = checksum({k: v for k, v in arrays.items() if k != "header"},
+                                      with_header)
         arrays["header"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
     out = io.BytesIO()
     np.savez_compressed(out, **arrays)
     return out.getvalue()
 
 
+# Values no recording holds, put where a number was: a stamp of 300 million years, a position
+# of 500 km, a heading of a billion radians, a range limit or angle beyond any scanner's.
+IMPOSSIBLE = [b"9760527911594970.0", b"507216.0", b"1.5e9", b"-3.0e7", b"1e200", b"5.7e31",
+              b"1.8e19", b"100000", b"35156"]
+HEADER_VALUES = [float("nan"), -5.0, 0.0, 1e300, "garbage", [], {}, None, -1, 10**30]
+
+
+def _edit_field(node: object, rng: np.random.Generator) -> None:
+    """Replace one value somewhere in a JSON document (in place) by a hostile one."""
+    while True:
+        keys = (list(node) if isinstance(node, dict) else range(len(node))
+                if isinstance(node, list) else [])
+        if not keys:
+            return
+        key = keys[int(rng.integers(len(keys)))]
+        child = node[key]
+        if isinstance(child, dict | list) and child and rng.integers(3):
+            node = child
+            continue
+        node[key] = HEADER_VALUES[int(rng.integers(len(HEADER_VALUES)))]
+        return
+
+
+def _huge_line(data: bytes, rng: np.random.Generator) -> bytes:
+    """A line longer than any record (5 MB: what one line of a damaged file may be)."""
+    lines = data.split(b"\n")
+    at = int(rng.integers(len(lines) + 1))
+    junk = bytes([int(rng.integers(33, 127))]) * (5 << 20)
+    return b"\n".join(lines[:at] + [junk] + lines[at:])
+
+
+def _impossible_values(data: bytes, rng: np.random.Generator) -> bytes:
+    """Numbers of a few lines replaced by physically impossible (finite) ones."""
+    lines = data.split(b"\n")
+    for _ in range(int(rng.integers(1, 4))):
+        i = int(rng.integers(len(lines)))
+        words = lines[i].split(b" ")
+        j = int(rng.integers(len(words)))
+        words[j] = IMPOSSIBLE[int(rng.integers(len(IMPOSSIBLE)))]
+        lines[i] = b" ".join(words)
+    return b"\n".join(lines)
+
+
+def _degenerate_scans(data: bytes, rng: np.random.Generator) -> bytes:
+    """Scan lines cut to 0, 1 or 2 beams, or with no return at all, the count matching
+    (CARMEN FLASER and DP-SLAM Laser lines)."""
+    lines = data.split(b"\n")
+    keep = int(rng.integers(3))
+    blind = bool(rng.integers(2))
+    out = []
+    for line in lines:
+        words = line.split(b" ")
+        if words[0] in (b"FLASER", b"Laser") and len(words) > 2 and words[1].isdigit():
+            n = int(words[1])
+            ranges, rest = words[2:2 + n], words[2 + n:]
+            if blind:
+                ranges = [b"0.0"] * n
+            else:
+                ranges, n = ranges[:keep], keep
+            words = [words[0], str(n).encode(), *ranges, *rest]
+        out.append(b" ".join(words))
+    return b"\n".join(out)
+
+
+def _deep_yaml(data: bytes, rng: np.random.Generator) -> bytes:
+    """A document nested thousands deep, or a number of thousands of digits."""
+    if rng.integers(2):
+        depth = int(rng.integers(1000, 20000))
+        return b"motion: " + b"[" * depth + b"]" * depth + b"\n"
+    return data.replace(b": ", b": " + b"9" * int(rng.integers(4000, 20000)) + b"#", 1)
+
+
+def _class_mutation(parser: Parser, original: bytes, rng: np.random.Generator
+                    ) -> bytes | None:
+    """One of the mutations aimed at a class of hostile input, for a parser it applies to
+    (None: none does, or the draw fell to the others)."""
+    textual = parser.name in ("carmen", "carmen gzip", "g2o zip", "dpslam", "breezyslam",
+                              "configuration", "scenario", "relations", "tum")
+    if not textual or rng.integers(3):
+        return None
+    kind = int(rng.integers(4))
+    if kind == 0:
+        inner = _huge_line(original, rng)
+    elif kind == 1 or parser.name in ("relations", "tum"):
+        inner = _impossible_values(original, rng)
+    elif parser.name in ("configuration", "scenario"):
+        inner = _deep_yaml(original, rng)
+    else:
+        inner = _degenerate_scans(original, rng)
+    if parser.pack == "gzip":
+        return gzip.compress(inner)
+    return _zip("log.g2o", inner) if parser.pack == "zip" else inner
+
+
 def mutate(parser: Parser, original: bytes, rng: np.random.Generator) -> bytes:
     """One mutation of ``original`` as the parser's file holds it."""
+    aimed = _class_mutation(parser, original, rng)
+    if aimed is not None:
+        return aimed
     textual = parser.name not in ("ros1 bag", "mcap", "ros2 sqlite3", "map file",
                                   "milestones", "grid (pgm)")
     if parser.name in ("map file", "milestones") and rng.integers(2):
@@ -458,6 +583,15 @@ def mutate(parser: Parser, original: bytes, rng: np.random.Generator) -> bytes:
 
 
 # -- running cases --------------------------------------------------------------------------
+def _not_a_file(target: Path, rng: np.random.Generator) -> None:
+    """Make ``target`` a FIFO (nothing writes into it) or a symlink to an endless device."""
+    devices = [d for d in ("/dev/zero", "/dev/urandom", "/dev/null") if os.path.exists(d)]
+    if devices and rng.integers(2):
+        target.symlink_to(devices[int(rng.integers(len(devices)))])
+    else:
+        os.mkfifo(target)
+
+
 def _alarm(_signum: int, _frame: object) -> None:
     raise Hang
 
@@ -485,7 +619,12 @@ def run_cases(job: tuple[str, int, int, float]) -> Tally:
         target = workdir / f"case{parser.suffix}"
         for case in range(seed, seed + count):
             rng = np.random.default_rng(case)
-            target.write_bytes(mutate(parser, original, rng))
+            if target.is_symlink() or target.exists():
+                target.unlink()
+            if rng.integers(50) == 0 and hasattr(os, "mkfifo"):
+                _not_a_file(target, rng)  # what a user may point at: a FIFO, a device
+            else:
+                target.write_bytes(mutate(parser, original, rng))
             tally.cases += 1
             signal.setitimer(signal.ITIMER_REAL, timeout)
             try:
@@ -503,6 +642,11 @@ def run_cases(job: tuple[str, int, int, float]) -> Tally:
                     tally.example.setdefault(place, case)
                 else:
                     tally.refused += 1
+            except Nonsense as exc:
+                tally.nonsense += 1
+                place = f"nonsense read: {exc}"[:80]
+                tally.places[place] += 1
+                tally.example.setdefault(place, case)
             except Exception as exc:
                 tally.tracebacks += 1
                 place = _place(exc)
@@ -521,12 +665,13 @@ def _write(rows: list[tuple[str, Tally, float]], names: list[str], cases: int) -
             "repeats, zeroed blocks, line edits, extreme numbers, non-UTF-8), read as the "
             "command line reads it, RuntimeWarnings counted as tracebacks. Refused: one-line "
             "error, exit 2.", "",
-            "| parser | cases | read | refused (one line) | tracebacks | hangs | time |",
-            "|---|---|---|---|---|---|---|"]
+            "| parser | cases | read | refused (one line) | tracebacks | hangs | silent nonsense "
+            "| time |",
+            "|---|---|---|---|---|---|---|---|"]
     table = _rows_written_before(names)
     for name, t, took in rows:
         table[name] = (f"| {name} | {t.cases} | {t.read} | {t.refused} | {t.tracebacks} | "
-                       f"{t.hangs} | {took:.0f} s |")
+                       f"{t.hangs} | {t.nonsense} | {took:.0f} s |")
     body += [table[n] for n in names if n in table]
     write_section("fuzz", "## Fuzzing the parsers\n\n" + "\n".join(body) + "\n")
 
@@ -575,12 +720,12 @@ def main() -> int:
             rows.append((name, tally, took))
             print(f"{name:<14} {tally.cases:>7} cases: {tally.read:>7} read, {tally.refused:>7} "
                   f"refused (one line), {tally.tracebacks:>5} tracebacks, {tally.hangs:>3} "
-                  f"hangs ({took:.0f} s)", flush=True)
+                  f"hangs, {tally.nonsense:>3} silent nonsense ({took:.0f} s)", flush=True)
             for place, n in tally.places.most_common(8):
                 print(f"    {n:>6} x {place} (first: case {tally.example[place]})", flush=True)
             if not args.no_write:  # after each parser: a long run cut short keeps its rows
                 _write(rows, names, args.cases)
-    return 1 if any(t.tracebacks or t.hangs for _, t, _ in rows) else 0
+    return 1 if any(t.tracebacks or t.hangs or t.nonsense for _, t, _ in rows) else 0
 
 
 if __name__ == "__main__":

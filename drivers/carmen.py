@@ -32,7 +32,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from drivers.textlog import DAMAGE, LineLog, open_text
+from drivers.textlog import DAMAGE, LineLog, LineTooLong, lines_of, open_text
 from vmp.source import Reference, SourceReport, stack_reference
 from vmp.types import ScanFrame, compose, interpolate_pose, relative
 
@@ -88,7 +88,7 @@ class CarmenLog(LineLog):
             last = -math.inf
             try:
                 with open_text(self.path) as f:
-                    for line in f:
+                    for line in lines_of(f):
                         if not line.startswith("ODOM"):
                             continue
                         odom = _odom_line(line.split())
@@ -98,7 +98,7 @@ class CarmenLog(LineLog):
                             self._odometry_stamped = False
                             break
                         last = odom[0]
-            except (OSError, *DAMAGE):
+            except (OSError, LineTooLong, *DAMAGE):
                 pass  # the pass that maps reads up to the damage and reports it
         return self._odometry_stamped
 

@@ -12,7 +12,7 @@ from typing import IO
 import numpy as np
 
 from vmp import __version__
-from vmp.fileio import atomic_write
+from vmp.fileio import atomic_write, writable_target
 from vmp.types import ScanFrame, wrap_angle
 
 __all__ = ["CarmenWriter", "write_carmen"]
@@ -37,7 +37,7 @@ class CarmenWriter:
         self.path = Path(path)
         self._ctx = atomic_write(self.path, "w", encoding="ascii") if atomic else None
         self._f: IO[str] = (self._ctx.__enter__() if self._ctx is not None
-                            else open(self.path, "w", encoding="ascii"))
+                            else open(writable_target(self.path), "w", encoding="ascii"))
         self._geometry: tuple[int, float, float, float] | None = None
         self._last: tuple[float, np.ndarray] | None = None
         self._f.write("# CARMEN Logfile\n# file format is one message per line\n")

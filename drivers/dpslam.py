@@ -56,8 +56,16 @@ class DpSlamLog(LineLog):
                 self._bad(no, "a Laser line without a valid Odometry line before it")
                 continue
             ranges = np.where((r >= MAX_RANGE - 1e-6) | (r <= 0), np.inf, r)
+            try:
+                if n < 2:  # the beams span 180 degrees, first to last
+                    raise ValueError(f"declares {n} ranges, a scan spanning 180 degrees needs 2 "
+                                     "or more")
+                frame = ScanFrame(stamp=self.scans / RATE_HZ, ranges=ranges,
+                                  angle_min=-math.pi / 2, angle_increment=math.pi / (n - 1),
+                                  max_range=MAX_RANGE, odom=odom, index=self.scans)
+            except ValueError as exc:
+                self._bad(no, f"bad Laser line: {exc}")
+                continue
             self._line = no
-            yield ScanFrame(stamp=self.scans / RATE_HZ, ranges=ranges,
-                            angle_min=-math.pi / 2, angle_increment=math.pi / (n - 1),
-                            max_range=MAX_RANGE, odom=odom, index=self.scans)
+            yield frame
             odom = None

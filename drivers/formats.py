@@ -9,8 +9,9 @@ from drivers.breezyslam import BreezySlamLog
 from drivers.carmen import CarmenLog
 from drivers.dpslam import DpSlamLog
 from drivers.rosbag import RosBagLog, is_ros2_bag
-from drivers.textlog import DAMAGE, LineLog, open_text
+from drivers.textlog import DAMAGE, LineLog, LineTooLong, lines_of, open_text
 from vmp.errors import InputError
+from vmp.fileio import not_regular
 
 __all__ = ["FORMATS", "detect_format", "open_recording"]
 
@@ -37,7 +38,7 @@ def detect_format(path: Path) -> str:
             return "rosbag"
     try:
         with open_text(path) as f:
-            for _, line in zip(range(200), f, strict=False):
+            for _, line in zip(range(200), lines_of(f), strict=False):
                 parts = line.split()
                 if not parts or parts[0].startswith("#"):
                     continue
@@ -48,7 +49,7 @@ def detect_format(path: Path) -> str:
                 if len(parts) > 700 and parts[0].replace(".", "", 1).isdigit():
                     return "breezyslam"
                 break
-    except DAMAGE as exc:
+    except (LineTooLong, *DAMAGE) as exc:
         raise InputError(f"{path}: cannot read: {exc}") from exc
     raise InputError(f"{path}: not a recording this program knows (formats: "
                      f"{', '.join(FORMATS)}; choose one with --format)")
@@ -61,6 +62,10 @@ def open_recording(path: str | os.PathLike[str], fmt: str | None = None,
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file")
+    if not (path.is_file() or path.is_dir()):
+        # A FIFO would block until something writes into it, a device never ends.
+        raise InputError(f"{path}: {not_regular(path)}; a recording is a regular file or a "
+                         "ROS 2 bag folder")
     name = fmt or detect_format(path)
     if name not in FORMATS:
         raise InputError(f"unknown format {name!r}; expected one of {', '.join(FORMATS)}")

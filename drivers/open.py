@@ -19,6 +19,8 @@ def _is_recording(text: str, fmt: str | None) -> bool:
     if text in builtin_scenarios():
         return False
     path = Path(text)
+    if path.exists() and not (path.is_file() or path.is_dir()):
+        return True  # a FIFO or a device: refused as a recording, by what it is
     return fmt is not None or path.suffix in RECORDING_SUFFIXES or path.is_dir() or (
         path.is_file() and path.suffix not in (".yaml", ".yml"))
 

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.textlog import LineLog
+from drivers.textlog import LineLog, OdometryJumps, implausible
 from vmp.errors import InputError
 from vmp.types import FloatArray, ScanFrame, interpolate_pose
 
@@ -125,13 +125,18 @@ def _ros1_messages(path: Path, topics: set[str] | None = None
 def _decompress(comp: bytes, data: bytes, path: Path) -> bytes:
     if comp == b"none":
         return data
-    if comp == b"bz2":
-        return bz2.decompress(data)
-    if comp == b"lz4":
-        import lz4.frame  # optional: only bags compressed with lz4 need it
+    try:
+        if comp == b"bz2":
+            return bz2.decompress(data)
+        if comp == b"lz4":
+            import lz4.frame  # optional: only bags compressed with lz4 need it
 
-        return lz4.frame.decompress(data)
-    raise InputError(f"{path}: chunk compression {comp.decode()!r} is not supported")
+            return lz4.frame.decompress(data)
+    except (OSError, ValueError, RuntimeError, EOFError) as exc:  # lz4 says RuntimeError
+        raise InputError(f"{path}: a damaged {comp.decode()} chunk in the ROS 1 bag "
+                         f"({exc})") from exc
+    raise InputError(f"{path}: chunk compression {comp.decode(errors='replace')!r} is not "
+                     "supported")
 
 
 def _typename(msgtype: str) -> str:
@@ -323,6 +328,7 @@ class RosBagLog(LineLog):
         self._closed = False
         odom_t, odom_p = self._odometry()
         last = -math.inf
+        odometry = OdometryJumps()
         for k, _, t_ns, m in self.bag.messages({self.chosen_scan}):
             try:
                 if isinstance(m, Exception):
@@ -340,6 +346,11 @@ class RosBagLog(LineLog):
             except (ValueError, AttributeError, TypeError, OverflowError) as exc:
                 self._bad(k, f"bad LaserScan message: {exc}")
                 continue
+            problem = implausible(frame) or odometry.jump(frame)
+            if problem:
+                self._bad(k, f"{problem}; scan skipped")
+                continue
+            frame = odometry.checked(frame)
             if frame.stamp < last:
                 self._bad(k, "stamp runs backwards; scan kept", skip=False)
             last = max(last, frame.stamp)

@@ -40,7 +40,8 @@ import numpy as np
 import yaml
 
 from vmp.errors import InputError
-from vmp.types import BeamGeometry, FloatArray
+from vmp.fileio import parse_yaml
+from vmp.types import MAX_BEAMS, BeamGeometry, FloatArray
 
 __all__ = [
     "MovingObstacle",
@@ -62,7 +63,6 @@ class ScenarioError(InputError):
 # What one scenario may ask of a run (more is refused up front with the figure rather than
 # exhausting memory or running for days): scans, beams per scan, stored beams, wall segments.
 MAX_SCANS = 1_000_000
-MAX_BEAMS = 10_000
 MAX_STORED_BEAMS = 200_000_000  # end points the map would hold: 1.6 GB of float32 pairs
 MAX_WALL_SEGMENTS = 100_000
 
@@ -460,10 +460,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         except (OSError, UnicodeDecodeError) as exc:
             raise ScenarioError(f"{source}: cannot read: {exc}") from exc
     try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{source}:{mark.line + 1}" if mark is not None else source
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ScenarioError(f"{where}: not valid YAML: {problem}") from exc
+        doc = parse_yaml(text, source)
+    except InputError as exc:
+        raise ScenarioError(str(exc)) from exc
     return parse_scenario(doc, source)

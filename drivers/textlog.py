@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import io
+import lzma
+import math
 import os
 import struct
 import zipfile
@@ -16,11 +19,39 @@ from vmp.errors import InputError
 from vmp.source import Reference, SourceReport
 from vmp.types import BeamGeometry, ScanFrame
 
-__all__ = ["DAMAGE", "LineLog", "open_text"]
+__all__ = ["DAMAGE", "MAX_LINE", "LineLog", "LineTooLong", "OdometryJumps", "implausible",
+           "lines_of", "open_text"]
 
 # What reading a damaged gzip or zip container raises (a bad CRC or header, a cut-off stream,
 # a corrupt deflate block); gzip.BadGzipFile is an OSError.
-DAMAGE = (OSError, EOFError, zlib.error, zipfile.BadZipFile)
+DAMAGE = (OSError, EOFError, zlib.error, zipfile.BadZipFile, lzma.LZMAError)
+# The longest line read (characters): a scan of the most beams any 2D scanner measures a sweep
+# (vmp.types.MAX_BEAMS) written with remissions takes a few hundred kB; a longer line is not
+# a record, and reading it whole would hold all of it in memory.
+MAX_LINE = 4 << 20
+
+
+# Values no recording holds: a stamp past the year 2100 (Unix seconds), a robot faster than
+# any ground vehicle that maps with a 2D laser (m/s; over at least a second, as stamps written
+# on arrival come in bursts), a heading of more turns than a robot makes in its life (rad).
+MAX_STAMP = 4.1e9
+MAX_SAID = 200  # characters of a bad line's problem kept
+MAX_SPEED = 50.0
+MAX_HEADING = 1e6
+
+
+class LineTooLong(ValueError):
+    """A line longer than :data:`MAX_LINE`: not a record of any recording."""
+
+
+def lines_of(f: IO[str]) -> Iterator[str]:
+    """The lines of ``f``, each read to :data:`MAX_LINE` characters at most;
+    :class:`LineTooLong` at the first longer one (memory stays bounded whatever the file)."""
+    read = f.readline
+    while line := read(MAX_LINE + 1):
+        if len(line) > MAX_LINE:
+            raise LineTooLong(f"a line longer than {MAX_LINE >> 20} MB (not a record)")
+        yield line
 
 
 class _FirstMember(io.RawIOBase):
@@ -197,6 +228,8 @@ class LineLog:
         """Item ``no`` could not be used (``skip``) or is odd but kept (a stamp running
         backwards, a property of some recordings): recorded; with ``strict`` an unusable
         item raises :class:`InputError`."""
+        if len(what) > MAX_SAID:  # a decoder's message may quote a whole definition
+            what = what[:MAX_SAID] + " ..."
         if self.strict and skip:
             where = f"{self.path}:{no}" if self.item == "line" else f"{self.path}: {self.item} {no}"
             raise InputError(f"{where}: {what}")
@@ -219,8 +252,10 @@ class LineLog:
         """Numbered lines of ``f`` up to the end or to where its container is damaged."""
         no = 0
         try:
-            for no, line in enumerate(f, start=1):
+            for no, line in enumerate(lines_of(f), start=1):
                 yield no, line
+        except LineTooLong as exc:
+            self._damage(f"at line {no + 1}", exc)
         except DAMAGE as exc:
             self._damage(f"after line {no}", exc)
 
@@ -234,7 +269,13 @@ class LineLog:
             raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
         with f:
             last_stamp = -float("inf")
+            odometry = OdometryJumps()
             for frame in self._frames(self._lines(f)):
+                problem = implausible(frame) or odometry.jump(frame)
+                if problem:
+                    self._bad(self._line, f"{problem}; scan skipped")
+                    continue
+                frame = odometry.checked(frame)
                 if frame.stamp < last_stamp:
                     self._bad(self._line, f"stamp {frame.stamp:.6f} runs backwards (latest "
                                           f"before {last_stamp:.6f}); scan kept", skip=False)
@@ -246,3 +287,59 @@ class LineLog:
 
     def _frames(self, lines: Iterator[tuple[int, str]]) -> Iterator[ScanFrame]:
         raise NotImplementedError
+
+
+def implausible(frame: ScanFrame) -> str:
+    """What no recording holds in ``frame`` ("" when nothing): a stamp beyond
+    :data:`MAX_STAMP`, an odometry pose beyond any building or a heading of
+    :data:`MAX_HEADING` radians."""
+    if not abs(frame.stamp) <= MAX_STAMP:
+        return f"stamp {frame.stamp:.6g} s lies past the year 2100"
+    odom = frame.odom
+    if odom is not None and not (abs(odom[0]) <= MAX_SPEED * MAX_STAMP
+                                 and abs(odom[1]) <= MAX_SPEED * MAX_STAMP
+                                 and abs(odom[2]) <= MAX_HEADING):
+        return f"odometry ({odom[0]:.6g}, {odom[1]:.6g}, {odom[2]:.6g}) is beyond any robot's"
+    return ""
+
+
+class OdometryJumps:
+    """Odometry jumps between scans: a scan whose odometry lies farther from both the last
+    scan kept and the scan read before it than a robot drives at :data:`MAX_SPEED` is a damaged
+    record (skipped); one that agrees with the scan before it, after a jump, is the wheels'
+    count started anew (kept, its increment unknown)."""
+
+    def __init__(self) -> None:
+        self._kept: ScanFrame | None = None
+        self._read: ScanFrame | None = None
+        self._anew = False
+
+    def jump(self, frame: ScanFrame) -> str:
+        """Why ``frame`` is skipped ("" when it is not)."""
+        last, before = self._kept, self._read
+        self._read = frame
+        if frame.odom is None or last is None or last.odom is None or _reachable(last, frame):
+            self._anew = False
+            return ""
+        if before is not None and before is not last and before.odom is not None \
+                and _reachable(before, frame):
+            self._anew = True  # the odometry started again where the scan before was
+            return ""
+        dist = math.hypot(*(frame.odom[:2] - last.odom[:2]))
+        return (f"odometry jumps {dist:.6g} m in {abs(frame.stamp - last.stamp):.3g} s "
+                f"(faster than {MAX_SPEED:g} m/s)")
+
+    def checked(self, frame: ScanFrame) -> ScanFrame:
+        """``frame`` as kept: without odometry where the wheels' count started anew."""
+        self._kept = frame
+        if self._anew:
+            self._anew = False
+            return dataclasses.replace(frame, odom=None)
+        return frame
+
+
+def _reachable(a: ScanFrame, b: ScanFrame) -> bool:
+    """Whether a robot at :data:`MAX_SPEED` gets from ``a``'s odometry to ``b``'s between their
+    stamps (over a second at least)."""
+    dist = math.hypot(b.odom[0] - a.odom[0], b.odom[1] - a.odom[1])
+    return dist <= MAX_SPEED * max(abs(b.stamp - a.stamp), 1.0)

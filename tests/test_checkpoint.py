@@ -182,3 +182,30 @@ def test_a_saved_map_another_run_has_mapped_on_is_refused_clearly(tmp_path):
         with pytest.raises(InputError, match="load it again"):
             again()
     MappingRun(open_source("lab", seed=5, scans=50), saved=load_map(tmp_path / "a.vmpmap"))
+
+
+def test_ctrl_c_pressed_three_times_keeps_the_results(tmp_path):
+    """Ctrl-C three times 0.05 s apart: the first ends the run, the others only say that the
+    results are kept; every file is written and the map loads."""
+    from vmp.mapfile import load_map
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "vmp", "map", "office", "--scans", "2000",
+                             "--out", str(tmp_path), "-q"], env=env, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        _wait_for(tmp_path, "*/INCOMPLETE", proc, 120)
+        time.sleep(1.5)
+        assert proc.poll() is None, "the run ended before the signal: give it more scans"
+        for _ in range(3):
+            proc.send_signal(signal.SIGINT)
+            time.sleep(0.05)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 130, err
+    assert "it is kept" in err and "Traceback" not in err
+    folder = (tmp_path / "latest").resolve()
+    assert not (folder / "INCOMPLETE").exists()
+    assert len(load_map(folder / "map.vmpmap").map) > 0

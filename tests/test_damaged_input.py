@@ -163,11 +163,11 @@ def test_a_map_file_with_a_changed_byte_or_a_bad_array_is_refused(tmp_path):
         arrays = {k: z[k] for k in z.files}
     header = json.loads(arrays["header"].tobytes().decode())
 
-    def write(changed: dict, fix_checksum: bool) -> Path:
+    def write(changed: dict, fix_checksum: bool, edit: dict | None = None) -> Path:
         out = dict(arrays, **changed)
-        h = dict(header)
+        h = dict(header, **(edit or {}))
         if fix_checksum:
-            h["checksum"] = checksum({k: v for k, v in out.items() if k != "header"})
+            h["checksum"] = checksum({k: v for k, v in out.items() if k != "header"}, h)
         out["header"] = np.frombuffer(json.dumps(h).encode(), dtype=np.uint8)
         bad = tmp_path / "bad.vmpmap"
         with open(bad, "wb") as f:  # a path would get ".npz" appended
@@ -183,6 +183,23 @@ def test_a_map_file_with_a_changed_byte_or_a_bad_array_is_refused(tmp_path):
     segment = arrays["segment"] + 1
     with pytest.raises(InputError, match="segment numbers"):
         load_map(write({"segment": segment}, fix_checksum=True))
+    # The header is inside the checksum, and every field of it is checked on load.
+    with pytest.raises(InputError, match="checksum does not match"):
+        load_map(write({}, fix_checksum=False, edit={"free_range": 3.0}))
+    geometry = dict(header["geometry"], angle_increment=0.0)
+    ms_config = dict(header["milestones"], config=[])
+    signatures = arrays["milestones/signatures"].copy()
+    signatures[0, 0] = np.nan
+    for changed, edit, message in [
+            ({}, {"free_range": float("nan")}, "free_range"),
+            ({}, {"free_range": -5.0}, "free_range"),
+            ({}, {"config": "garbage"}, "configuration is not a mapping"),
+            ({}, {"config": {"motion": {"trans_per_m": -0.1}}}, "motion.trans_per_m"),
+            ({}, {"geometry": geometry}, "angle step"),
+            ({}, {"milestones": ms_config}, "configuration is not a mapping"),
+            ({"milestones/signatures": signatures}, {}, "not finite")]:
+        with pytest.raises(InputError, match=message):
+            load_map(write(changed, fix_checksum=True, edit=edit))
     edges = arrays["edge_ij"].copy()
     edges[0, 1] = 10_000
     with pytest.raises(InputError, match="graph edge joins a milestone the map does not hold"):

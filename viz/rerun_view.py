@@ -263,7 +263,8 @@ def open_rerun(target: str, app_id: str = "vmp-slam") -> tuple[RerunView, str]:
         path = Path(target)
         if path.suffix != ".rrd":
             raise ValueError(f"--rerun expects a .rrd file, 'spawn' or 'serve', got {target!r}")
+        made = not path.parent.exists()
         path.parent.mkdir(parents=True, exist_ok=True)
         rec.save(path, default_blueprint=bp)
-        where = f"recording in {path}"
+        where = f"recording in {path}" + (f" (made the folder {path.parent})" if made else "")
     return RerunView(rec), where

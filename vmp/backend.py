@@ -29,7 +29,7 @@ from vmp.config import MappingConfig
 from vmp.fusion import motion_covariance
 from vmp.matcher import Kind, Match, Seed, pins
 from vmp.pose_graph import Edge, PoseGraph
-from vmp.registration import Reference, Registration, fits, register
+from vmp.registration import MIN_POINTS, Reference, Registration, fits, register
 from vmp.types import (
     FloatArray,
     ScanFrame,
@@ -238,7 +238,11 @@ class BackEnd:
 
     def record(self, pose: FloatArray, frame: ScanFrame) -> int | None:
         """Record a milestone here if one is due and the place is distinctive; it becomes the
-        anchor, joined to the last by a path edge. Returns its id, or None."""
+        anchor, joined to the last by a path edge. Returns its id, or None. A scan with
+        fewer than :data:`~vmp.registration.MIN_POINTS` returns makes none: it cannot be
+        registered against."""
+        if int(frame.returned.sum()) < MIN_POINTS:
+            return None
         new = self.milestones.consider(pose, frame.ranges, frame.angle_min,
                                        frame.angle_increment, frame.max_range, frame.stamp,
                                        among=[self.anchor])

@@ -21,7 +21,7 @@ import yaml
 
 from milestones.manager import ManagerConfig
 from vmp.errors import InputError
-from vmp.fileio import atomic_write
+from vmp.fileio import atomic_write, read_yaml
 
 __all__ = ["LoopConfig", "MapConfig", "MappingConfig", "MatchingConfig", "MotionNoise",
            "RegistrationConfig", "ScanOdometryConfig", "config_from_dict", "config_to_dict",
@@ -96,32 +96,34 @@ class MappingConfig:
     map: MapConfig = field(default_factory=MapConfig)
 
 
-# The range each number may take: (low, high, whether low itself is allowed). A value
-# outside is refused on load, naming the key and the range; every number field has one
-# (tests/test_config.py checks).
-LIMITS: dict[str, tuple[float, float, bool]] = {
-    "motion.trans_per_m": (0.0, 10.0, True),
-    "motion.rot_per_m": (0.0, math.pi, True),
-    "motion.rot_per_rad": (0.0, 10.0, True),
-    "scan_odometry.keyframe_distance": (0.0, 100.0, False),
-    "scan_odometry.keyframe_turn": (0.0, math.pi, False),
-    "registration.max_rms": (0.0, 10.0, False),
-    "registration.min_inliers": (0.0, 1.0, False),
-    "milestones.length": (8, 4096, True),
-    "milestones.clamp_range": (0.0, 1000.0, False),
-    "milestones.keep": (0.0, 1.0, False),
-    "milestones.record_distance": (0.0, 1000.0, False),
-    "milestones.record_turn": (0.0, 2 * math.pi, False),
-    "milestones.max_heading": (0.0, math.pi, False),
-    "milestones.recognition_radius": (0.0, 1000.0, False),
-    "matching.candidates": (0, 100, True),
-    "matching.max_ratio": (0.0, 1.0, False),
-    "matching.retry_max_ratio": (0.0, 1.0, False),
-    "matching.retry_min_inliers": (0.0, 1.0, False),
-    "loops.switch_margin": (0.0, 100.0, True),
-    "loops.separation": (1, 1_000_000, True),
-    "loops.adjust_chi2": (0.0, 1e6, True),
-    "map.no_return_free_range": (0.0, 1000.0, True),
+# The physical range each number may take, both ends included, and its unit: noise no wheels
+# are free of, lengths from a centimetre to a building, angles from a tenth of a degree to a
+# turn, shares from a hundredth. A value outside is refused on load, naming the key, the range
+# and the unit; every number field has one (tests/test_config.py checks).
+_DEG = math.radians(0.1)
+LIMITS: dict[str, tuple[float, float, str]] = {
+    "motion.trans_per_m": (1e-3, 10.0, "m per m driven"),
+    "motion.rot_per_m": (1e-4, math.pi, "rad per m driven"),
+    "motion.rot_per_rad": (1e-3, 10.0, "rad per rad turned"),
+    "scan_odometry.keyframe_distance": (0.01, 100.0, "m"),
+    "scan_odometry.keyframe_turn": (_DEG, math.pi, "rad"),
+    "registration.max_rms": (1e-3, 10.0, "m"),
+    "registration.min_inliers": (0.01, 1.0, "share of the points"),
+    "milestones.length": (8, 4096, "signature values"),
+    "milestones.clamp_range": (0.1, 1000.0, "m"),
+    "milestones.keep": (0.01, 1.0, "share of the coefficients"),
+    "milestones.record_distance": (0.01, 1000.0, "m"),
+    "milestones.record_turn": (_DEG, 2 * math.pi, "rad"),
+    "milestones.max_heading": (_DEG, math.pi, "rad"),
+    "milestones.recognition_radius": (0.01, 1000.0, "m"),
+    "matching.candidates": (0, 100, "milestones"),
+    "matching.max_ratio": (0.01, 1.0, "score ratio"),
+    "matching.retry_max_ratio": (0.01, 1.0, "score ratio"),
+    "matching.retry_min_inliers": (0.01, 1.0, "share of the points"),
+    "loops.switch_margin": (0.0, 100.0, "m"),
+    "loops.separation": (1, 1_000_000, "milestones"),
+    "loops.adjust_chi2": (0.0, 1e6, "chi-square"),
+    "map.no_return_free_range": (0.0, 1000.0, "m"),
 }
 
 
@@ -149,10 +151,21 @@ def _finite_number(value: Any) -> bool:
 
 
 def _in_limits(value: float, key: str, where: str) -> None:
-    low, high, closed = LIMITS[key]
-    if value > high or value < low or (value == low and not closed):
-        lower = f">= {low:g}" if closed else f"> {low:g}"
-        raise InputError(f"{where}: expected a number {lower} and <= {high:g}, got {value!r}")
+    low, high, unit = LIMITS[key]
+    if not low <= value <= high:
+        raise InputError(f"{where}: expected a number from {low:.4g} to {high:.4g} ({unit}), "
+                         f"got {value!r}")
+
+
+def _number(value: Any) -> Any:
+    """``value``, or the number a string such as ``1e-09`` spells (YAML 1.1 reads an exponent
+    without a decimal point as a string)."""
+    if isinstance(value, str):
+        try:
+            return float(value) if len(value) <= 40 else value
+        except ValueError:
+            return value
+    return value
 
 
 def _value(current: Any, value: Any, where: str, key: str) -> Any:
@@ -163,6 +176,7 @@ def _value(current: Any, value: Any, where: str, key: str) -> Any:
             raise InputError(f"{where}: expected true or false, got {value!r}")
         return value
     if isinstance(current, int | float):
+        value = _number(value)
         if not _finite_number(value):
             raise InputError(f"{where}: expected a number, got {value!r}")
         if isinstance(current, int):
@@ -207,13 +221,7 @@ def config_from_dict(doc: Any, source: str, cls: type = MappingConfig,
 def load_config(path: str | Path) -> MappingConfig:
     """The configuration in a YAML file (keys left out keep their defaults)."""
     path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read: {exc}") from exc
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML: {exc}") from exc
-    return config_from_dict(doc, str(path))
+    return config_from_dict(read_yaml(path), str(path))
 
 
 def save_config(path: str | Path, config: MappingConfig) -> None:

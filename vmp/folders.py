@@ -4,8 +4,10 @@ folder need nothing of the mapper.)"""
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import os
+import sys
 from pathlib import Path
 
 __all__ = ["INCOMPLETE", "is_incomplete", "link_latest", "mark_complete", "new_results_dir",
@@ -55,10 +57,16 @@ def link_latest(folder: Path, name: str = "latest") -> None:
     root = folder.parent
     link = root / name
     tmp = root / f".{name}.{os.getpid()}"
+    if link.exists() and not link.is_symlink():
+        # A folder or file of the user's under that name is not replaced by the link.
+        print(f"vmp: {link} is not a link this program made; left as it is (the results are "
+              f"in {folder})", file=sys.stderr)
+        return
     try:
         if tmp.is_symlink() or tmp.exists():
             tmp.unlink()
         tmp.symlink_to(folder.name)
         os.replace(tmp, link)
     except OSError:  # a file system without links: the dated folder still holds everything
-        pass
+        with contextlib.suppress(OSError):
+            tmp.unlink()

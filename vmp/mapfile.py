@@ -9,9 +9,9 @@ range) and a damaged one refused with one line; version 1 files (no checksum) st
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
-import math
 import os
 import tokenize
 import zipfile
@@ -22,17 +22,18 @@ from pathlib import Path
 import numpy as np
 
 from milestones.manager import MilestoneManager
+from vmp.config import MappingConfig, config_from_dict
 from vmp.errors import InputError
 from vmp.fileio import atomic_write
 from vmp.pose_graph import PoseGraph
-from vmp.types import ScanFrame
+from vmp.types import ScanFrame, check_beams
 from vmp.vector_map import BeamGeometry, VectorMap
 
 __all__ = ["FORMAT", "VERSION", "MapData", "load_map", "save_map"]
 
 FORMAT = "vmp-slam map"
-VERSION = 2  # 2: the header holds a checksum of the arrays
-READS = (1, 2)  # the versions this program reads
+VERSION = 3  # 2: the header holds a checksum of the arrays; 3: of the header too
+READS = (1, 2, 3)  # the versions this program reads
 MAX_EXTENT = 1e6  # m: a pose farther out than this is damage, not a building
 _MS = "milestones/"
 
@@ -106,15 +107,20 @@ def save_map(path: str | os.PathLike[str], vmap: VectorMap, milestones: Mileston
         "edge_info": np.array([e.information for e in graph.edges]).reshape(-1, 3, 3),
     }
     arrays.update({_MS + k: v for k, v in ms.items()})
-    header["checksum"] = checksum(arrays)
+    header["checksum"] = checksum(arrays, header)
     with atomic_write(path, "wb") as f:
         np.savez_compressed(f, header=np.frombuffer(json.dumps(header).encode(),
                                                     dtype=np.uint8), **arrays)
 
 
-def checksum(arrays: dict[str, np.ndarray]) -> str:
-    """SHA-256 over the arrays' names, types, shapes and bytes, in name order."""
+def checksum(arrays: dict[str, np.ndarray], header: dict | None = None) -> str:
+    """SHA-256 over the arrays' names, types, shapes and bytes, in name order, and over the
+    ``header`` but its checksum (its JSON with sorted keys; None: the arrays alone, as
+    version 2 files hold it)."""
     h = hashlib.sha256()
+    if header is not None:
+        fields = {k: v for k, v in header.items() if k != "checksum"}
+        h.update(json.dumps(fields, sort_keys=True).encode())
     for name in sorted(arrays):
         a = np.ascontiguousarray(arrays[name])
         h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
@@ -138,11 +144,18 @@ def _shape(a: dict[str, np.ndarray], key: str, shape: tuple, kind: str,
 def _check(header: dict, a: dict[str, np.ndarray]) -> None:
     """Raise ValueError naming what in a loaded map file's contents is out of shape or range."""
     g = header["geometry"]
-    if not isinstance(g, dict) or not isinstance(g.get("num_beams"), int) or not (
-            0 < g["num_beams"] <= 100_000) or not all(
-            isinstance(g.get(k), int | float) and math.isfinite(g[k])
-            for k in ("angle_min", "angle_increment", "max_range")) or g["max_range"] <= 0:
+    if not isinstance(g, dict) or not isinstance(g.get("num_beams"), int) or not all(
+            isinstance(g.get(k), int | float) for k in ("angle_min", "angle_increment",
+                                                        "max_range")):
         raise ValueError("its beam geometry is not a scanner's")
+    try:
+        check_beams(g["num_beams"], g["angle_min"], g["angle_increment"], g["max_range"])
+    except ValueError as exc:
+        raise ValueError(f"its beam geometry is not a scanner's: {exc}") from None
+    free = header.get("free_range")
+    if free is not None and not (isinstance(free, int | float) and 0 <= free <= MAX_EXTENT):
+        raise ValueError(f"free_range {free!r}, expected metres >= 0 or none")
+    _check_config(header)
     n = g["num_beams"]
     scans = len(a["stamps"])
     points = _shape(a, "points", (scans, n, 2), "f", finite=True)
@@ -165,6 +178,9 @@ def _check(header: dict, a: dict[str, np.ndarray]) -> None:
         raise ValueError("its scans' segment numbers do not run 0, 1, ... over its segments")
     ids = _shape(a, _MS + "ids", (-1,), "iu")
     m = len(ids)
+    _shape(a, _MS + "signatures", (m, -1), "f", finite=True)
+    _shape(a, _MS + "features", (m, -1), "f", finite=True)
+    _shape(a, _MS + "scans", (-1,), "f")
     _shape(a, _MS + "poses", (m, 3), "f", finite=True)
     _shape(a, _MS + "stamps", (m,), "f", finite=True)
     lengths = _shape(a, _MS + "scan_lengths", (m,), "iu")
@@ -191,6 +207,26 @@ def _check(header: dict, a: dict[str, np.ndarray]) -> None:
         raise ValueError("its graph edges and their kinds do not pair up")
 
 
+def _check_config(header: dict) -> None:
+    """Raise ValueError unless the header's configurations are mappings whose settings this
+    program knows lie in their ranges (settings it does not know are left alone: a file from
+    another version may name them)."""
+    config, ms = header["config"], header["milestones"]
+    if not isinstance(config, dict) or not isinstance(ms, dict) or not isinstance(
+            ms.get("config"), dict):
+        raise ValueError("its configuration is not a mapping of settings")
+    defaults = MappingConfig()
+    sections = {f.name: {g.name for g in dataclasses.fields(getattr(defaults, f.name))}
+                for f in dataclasses.fields(defaults)}
+    known = {name: {k: v for k, v in values.items() if k in sections[name]}
+             for name, values in config.items() if name in sections and isinstance(values, dict)}
+    known["milestones"] = {k: v for k, v in ms["config"].items() if k in sections["milestones"]}
+    try:
+        config_from_dict(known, "configuration")
+    except InputError as exc:
+        raise ValueError(str(exc)) from None
+
+
 def load_map(path: str | os.PathLike[str]) -> MapData:
     """Read a map file; a missing, corrupt, damaged or foreign file raises :class:`InputError`
     with one line."""
@@ -215,7 +251,8 @@ def load_map(path: str | os.PathLike[str]) -> MapData:
     if header.get("version") not in READS:
         raise InputError(f"{path}: map file version {header.get('version')}, this program "
                          f"reads versions {', '.join(map(str, READS))}")
-    if header["version"] >= 2 and header.get("checksum") != checksum(a):
+    if header["version"] >= 2 and header.get("checksum") != checksum(
+            a, header if header["version"] >= 3 else None):
         raise InputError(f"{path}: a damaged vmp-slam map (its checksum does not match)")
     try:
         _check(header, a)

@@ -13,6 +13,7 @@ ended it. A second signal aborts at once.
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 import time
@@ -30,6 +31,7 @@ from vmp.mapfile import MapData
 from vmp.pipeline import Pipeline
 from vmp.places import Places
 from vmp.progress import Progress
+from vmp.registration import MIN_POINTS
 from vmp.results import Result
 from vmp.source import Source, reference_for
 from vmp.types import BeamGeometry, ScanFrame
@@ -42,8 +44,10 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 @contextlib.contextmanager
 def stop_on_signals(on_signal: Callable[[str], None]) -> Iterator[None]:
-    """Within the block, SIGINT and SIGTERM call ``on_signal(name)`` once; a second one raises
-    KeyboardInterrupt. Outside the main thread (where Python takes no signals) it does nothing.
+    """Within the block, SIGINT and SIGTERM call ``on_signal(name)`` once; later ones say,
+    once, that the results are being kept, and change nothing: a user pressing Ctrl-C again
+    and again must not lose what was mapped (aborting the writing would leave only a
+    partial folder). Outside the main thread (where Python takes no signals) it does nothing.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -51,10 +55,12 @@ def stop_on_signals(on_signal: Callable[[str], None]) -> Iterator[None]:
     seen: list[str] = []
 
     def handler(signum: int, _frame: object) -> None:
-        if seen:
-            raise KeyboardInterrupt
         seen.append(signal.Signals(signum).name)
-        on_signal(seen[0])
+        if len(seen) == 1:
+            on_signal(seen[0])
+        elif len(seen) == 2:
+            os.write(2, b"vmp: stopping after this scan and writing what was mapped; it is "
+                        b"kept (SIGKILL would lose what is not yet written)\n")
 
     previous = {s: signal.signal(s, handler) for s in SIGNALS}
     try:
@@ -136,6 +142,7 @@ class MappingRun(StoppableRun):
             "old_stamps": np.zeros(0) if saved is None else saved.map.stamps[:before].copy(),
             "old_poses": np.zeros((0, 3)) if saved is None else saved.trajectory[:before].copy(),
             "unplaced": 0,  # scans before the robot was localized in the saved map
+            "blind": 0,  # scans left out before the first with enough returns to begin at
             "stamps": [], "online": [], "odometry": [],
             "seconds": 0.0,  # mapping time before this process
         }
@@ -182,8 +189,16 @@ class MappingRun(StoppableRun):
                     continue
                 if frame.geometry != geometry:
                     raise InputError(f"{self.label}: scan {len(stamps)} has other beams "
-                                     f"({frame.geometry}) than the first ({geometry})")
+                                     f"({frame.geometry.describe()}, {frame.max_range:g} m) "
+                                     f"than the first ({geometry.describe()}, "
+                                     f"{geometry.max_range:g} m): every scan of a log must "
+                                     "have the first scan's beams")
                 pipeline = s["pipeline"]
+                if (pipeline is not None and pipeline.back.anchor is None
+                        and int(frame.returned.sum()) < MIN_POINTS):
+                    # The map begins at a milestone, and a scan with so few returns makes none.
+                    s["blind"] += 1
+                    continue
                 if pipeline is None:
                     s["unplaced"] += 1
                     s["pipeline"] = self._place(localizer, frame, geometry)
@@ -219,9 +234,14 @@ class MappingRun(StoppableRun):
                 raise InputError(f"{self.label}: not localized in the saved map in {unplaced} "
                                  f"scans{why}: nothing to go on from (is it the same "
                                  "building?)")
+            if s["blind"]:
+                raise InputError(f"{self.label}: no scan to begin the map at: none of its "
+                                 f"{s['blind']} scans has {MIN_POINTS} returns or more{why}")
             raise InputError(f"{self.label}: no scans to map{why}")
         if len(s["old_stamps"]):
             pipeline.stats["scans before localized in the saved map"] = unplaced
+        if s["blind"]:
+            pipeline.stats["scans left out before the first with returns to begin at"] = s["blind"]
         pipeline.finish()
         trajectory = pipeline.trajectory()
         elapsed = s["seconds"] + time.perf_counter() - started

@@ -18,8 +18,10 @@ from numpy.typing import ArrayLike, NDArray
 FloatArray = NDArray[np.float64]
 
 __all__ = [
+    "MAX_BEAMS",
     "BeamGeometry",
     "ScanFrame",
+    "check_beams",
     "compose",
     "compose_covariance",
     "interpolate_pose",
@@ -234,6 +236,30 @@ def _readonly(a: ArrayLike, dtype: type = np.float64) -> FloatArray:
     return out
 
 
+# The most beams a sweep may hold: more than any 2D scanner measures (a few thousand).
+MAX_BEAMS = 10_000
+
+
+def check_beams(num_beams: int, angle_min: float, angle_increment: float,
+                max_range: float) -> None:
+    """:class:`ValueError`, saying what is wrong, unless these are a 2D scanner's beams: at
+    most :data:`MAX_BEAMS`, finite angles, a non-zero step, at most a full turn from the first
+    beam to the last, a positive finite range limit."""
+    if not 1 <= num_beams <= MAX_BEAMS:
+        raise ValueError(f"{num_beams} beams, expected 1 to {MAX_BEAMS:,}")
+    if not (math.isfinite(angle_min) and abs(angle_min) <= 2 * math.pi):
+        raise ValueError(f"first beam at {angle_min!r} rad, expected a finite angle within "
+                         "+-2 pi")
+    if not (math.isfinite(angle_increment) and angle_increment != 0):
+        raise ValueError(f"angle step {angle_increment!r} rad, expected finite and non-zero")
+    span = abs(angle_increment) * (num_beams - 1)
+    if span > 2 * math.pi + 1e-6:
+        raise ValueError(f"{num_beams} beams every {math.degrees(angle_increment):.4g} deg "
+                         f"span {math.degrees(span):.4g} deg, more than a full turn")
+    if not (math.isfinite(max_range) and max_range > 0):
+        raise ValueError(f"range limit {max_range!r} m, expected positive and finite")
+
+
 @dataclass(frozen=True, eq=False)
 class ScanFrame:
     """One laser scan with the odometry (and, in simulation, the true pose) at its time.
@@ -264,6 +290,7 @@ class ScanFrame:
         r = _readonly(self.ranges)
         if r.ndim != 1 or r.size == 0:
             raise ValueError(f"ranges must be a non-empty 1-D array, got shape {r.shape}")
+        check_beams(r.size, self.angle_min, self.angle_increment, self.max_range)
         if np.isnan(r).any():
             raise ValueError("ranges hold NaN: mark beams without a return as +inf")
         if (r <= 0).any():
@@ -273,12 +300,6 @@ class ScanFrame:
             raise ValueError(f"finite ranges must not exceed max_range={self.max_range}")
         if self.no_return_free is not None and not self.no_return_free >= 0:
             raise ValueError(f"no_return_free must be >= 0, got {self.no_return_free}")
-        if not (np.isfinite(self.max_range) and self.max_range > 0):
-            raise ValueError(f"max_range must be positive and finite, got {self.max_range}")
-        if not (np.isfinite(self.angle_increment) and self.angle_increment != 0):
-            raise ValueError(
-                f"angle_increment must be finite and non-zero, got {self.angle_increment}"
-            )
         object.__setattr__(self, "ranges", r)
         for name in ("odom", "true_pose"):
             v = getattr(self, name)

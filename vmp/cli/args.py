@@ -27,6 +27,20 @@ def nonneg_int(text: str) -> int:
     return v
 
 
+# A grid cell from a millimetre to ten metres: finer than any laser measures, coarser than
+# a room; outside, the grid is either too large to hold or one cell for the whole building.
+CELL = (1e-3, 10.0)
+
+
+def cell_size(text: str) -> float:
+    """An occupancy grid's cell size in metres, within :data:`CELL`."""
+    v = positive_float(text)
+    if not CELL[0] <= v <= CELL[1]:
+        raise argparse.ArgumentTypeError(f"expected a cell size from {CELL[0]:g} to "
+                                         f"{CELL[1]:g} m, got {text!r}")
+    return v
+
+
 def positive_float(text: str) -> float:
     try:
         v = float(text)

@@ -26,10 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from vmp.cli.interrupt import handled_interrupt
 from vmp.errors import InputError
+from vmp.fileio import parse_yaml
 
 __all__ = ["Job", "add_parser", "plan", "run", "run_batch", "run_job", "write_table"]
 
@@ -88,9 +87,9 @@ def _sources(texts: Sequence[str]) -> list[tuple[str, int | None]]:
 
 def _value(text: str, where: str) -> Any:
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise InputError(f"{where}: {text!r} is not a value") from exc
+        return parse_yaml(text, where)
+    except InputError as exc:
+        raise InputError(f"{where}: {text[:80]!r} is not a value") from exc
 
 
 def _sweep(sets: Sequence[str]) -> list[tuple[tuple[str, Any], ...]]:

@@ -9,7 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from vmp.cli.args import positive_float
+from vmp.cli.args import cell_size
 from vmp.errors import InputError
 
 # The mapper's modules (SciPy, Shapely, the pipeline: about 0.6 s to import) are imported by
@@ -31,7 +31,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                    help="folder that receives the dated results folder (default: results)")
     p.add_argument("--config", type=Path, help="mapping configuration YAML (default: "
                    "built-in; every result holds the one it used as config.yaml)")
-    p.add_argument("--resolution", type=positive_float, default=0.05,
+    p.add_argument("--resolution", type=cell_size, default=0.05,
                    help="occupancy grid cell size in metres (default: 0.05)")
     p.add_argument("--rerun", metavar="TARGET",
                    help="watch in Rerun: a .rrd file to save (open it later with 'rerun "
@@ -135,6 +135,9 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
     elif result.interrupted:
         print(f"vmp: interrupted by {result.interrupted} after {result.scans} scans; "
               f"results in {out}", file=sys.stderr)
+    if late and not result.interrupted:
+        print(f"vmp: {late[0]} while the results were written: they were written in full, "
+              f"in {out}", file=sys.stderr)
     if view is not None:
         if args.rerun == "serve" and not result.interrupted:
             view.hold()

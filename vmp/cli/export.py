@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vmp.cli.args import positive_float
+from vmp.cli.args import cell_size
 from vmp.cli.common import warn_if_incomplete
 from vmp.errors import InputError
 
@@ -25,7 +25,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter)
     ex.add_argument("result", type=Path, help="results folder or .vmpmap file")
     ex.add_argument("--grid", type=Path, metavar="YAML", help="map_server YAML (+ PGM beside)")
-    ex.add_argument("--resolution", type=positive_float, default=0.05,
+    ex.add_argument("--resolution", type=cell_size, default=0.05,
                     help="metres per cell (default 0.05)")
     ex.add_argument("--png", type=Path, help="greyscale PNG of the grid")
     ex.add_argument("--npy", type=Path, help="the grid as a NumPy array (0, 205, 254)")

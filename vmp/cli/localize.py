@@ -68,6 +68,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     lc.set_defaults(run=run)
 
 
+FAR = 1e6  # metres: farther from a map's origin than any building reaches
+
+
 def _initial_pose(text: str | None) -> np.ndarray | None:
     if text is None:
         return None
@@ -76,8 +79,10 @@ def _initial_pose(text: str | None) -> np.ndarray | None:
     except ValueError:
         raise InputError(f"--initial-pose: expected X,Y,THETA (m, m, deg), got {text!r}") \
             from None
-    if not all(math.isfinite(v) for v in (x, y, th)):
-        raise InputError(f"--initial-pose: expected finite numbers, got {text!r}")
+    if not (all(math.isfinite(v) for v in (x, y, th)) and max(abs(x), abs(y)) <= FAR
+            and abs(th) <= 360.0):
+        raise InputError(f"--initial-pose: expected metres within {FAR:g} of the map's "
+                         f"origin and degrees within 360, got {text!r}")
     return np.array([x, y, math.radians(th)])
 
 
