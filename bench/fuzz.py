@@ -7,13 +7,20 @@ configuration, a scenario, relations and TUM files) and ``--cases`` mutations of
 truncation, flipped, inserted or deleted bytes, a span repeated, lines deleted, repeated or
 swapped, a number replaced by an extreme one (nan, inf, 1e308, -1, 0, huge integers, words),
 bytes that are not UTF-8, and for compressed containers the same done to the packed bytes or
-to the text inside. Every mutated file is read the way the command line reads it (a recording
-through to its last frame, a map through its checks, a configuration into a mapping run's
-settings, a scenario into its first scans). Each case ends one of four ways: read (the
+to the text inside. A third of the text cases are aimed at a class of hostile input: a line of
+5 MB, numbers replaced by physically impossible finite ones (a stamp 300 million years on, a
+position of 500 km), scans cut to 0, 1 or 2 beams or without a return, YAML nested thousands
+deep or with a number of thousands of digits; one case in fifty hands the parser a FIFO or a
+symlink to a device instead of a file; half the map file's header edits keep the JSON sound
+and its checksum valid. A recording read without complaint into odometry jumping faster than
+a robot drives, or stamps a year apart, counts as silent nonsense. Every mutated file is read
+the way the command line reads it (a recording through to its last frame, a map through its
+checks, a configuration into a mapping run's settings, a scenario into its first scans).
+Each case ends one of five ways: read (the
 mutation left something valid), refused (:class:`InputError` or an OS error, which the
-command line prints as one line and exit 2), a traceback (any other exception: a bug), or a
-hang (longer than ``--timeout``). An error message with a line break, and a RuntimeWarning
-(which a user would see printed), count as tracebacks.
+command line prints as one line and exit 2), a traceback (any other exception: a bug), a
+hang (longer than ``--timeout``), or silent nonsense. An error message with a line break, and
+a RuntimeWarning (which a user would see printed), count as tracebacks.
 
 It prints per parser the counts and the first few tracebacks by place, and writes the table to
 docs/benchmarks.md (section ``fuzz``). The exit code is 1 when any parser had a traceback or a

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.textlog import LineLog, OdometryJumps, implausible
+from drivers.textlog import Jumps, LineLog, implausible
 from vmp.errors import InputError
 from vmp.types import FloatArray, ScanFrame, interpolate_pose
 
@@ -328,7 +328,7 @@ class RosBagLog(LineLog):
         self._closed = False
         odom_t, odom_p = self._odometry()
         last = -math.inf
-        odometry = OdometryJumps()
+        odometry = Jumps()
         for k, _, t_ns, m in self.bag.messages({self.chosen_scan}):
             try:
                 if isinstance(m, Exception):

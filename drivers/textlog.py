@@ -19,8 +19,16 @@ from vmp.errors import InputError
 from vmp.source import Reference, SourceReport
 from vmp.types import BeamGeometry, ScanFrame
 
-__all__ = ["DAMAGE", "MAX_LINE", "LineLog", "LineTooLong", "OdometryJumps", "implausible",
-           "lines_of", "open_text"]
+__all__ = [
+    "DAMAGE",
+    "MAX_LINE",
+    "Jumps",
+    "LineLog",
+    "LineTooLong",
+    "implausible",
+    "lines_of",
+    "open_text",
+]
 
 # What reading a damaged gzip or zip container raises (a bad CRC or header, a cut-off stream,
 # a corrupt deflate block); gzip.BadGzipFile is an OSError.
@@ -37,6 +45,7 @@ MAX_LINE = 4 << 20
 MAX_STAMP = 4.1e9
 MAX_SAID = 200  # characters of a bad line's problem kept
 MAX_SPEED = 50.0
+MAX_GAP = 86400.0  # s: more than one recording pauses between two scans
 MAX_HEADING = 1e6
 
 
@@ -269,7 +278,7 @@ class LineLog:
             raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
         with f:
             last_stamp = -float("inf")
-            odometry = OdometryJumps()
+            odometry = Jumps()
             for frame in self._frames(self._lines(f)):
                 problem = implausible(frame) or odometry.jump(frame)
                 if problem:
@@ -303,11 +312,12 @@ def implausible(frame: ScanFrame) -> str:
     return ""
 
 
-class OdometryJumps:
-    """Odometry jumps between scans: a scan whose odometry lies farther from both the last
-    scan kept and the scan read before it than a robot drives at :data:`MAX_SPEED` is a damaged
-    record (skipped); one that agrees with the scan before it, after a jump, is the wheels'
-    count started anew (kept, its increment unknown)."""
+class Jumps:
+    """Jumps between scans no robot makes: a scan whose stamp lies more than :data:`MAX_GAP`
+    from the last scan kept's, or whose odometry lies farther from it than a robot drives at
+    :data:`MAX_SPEED`, is a damaged record (skipped) unless it agrees with the scan read
+    before it: then the recording paused, or the wheels' count started anew (kept, its
+    increment unknown)."""
 
     def __init__(self) -> None:
         self._kept: ScanFrame | None = None
@@ -318,11 +328,19 @@ class OdometryJumps:
         """Why ``frame`` is skipped ("" when it is not)."""
         last, before = self._kept, self._read
         self._read = frame
-        if frame.odom is None or last is None or last.odom is None or _reachable(last, frame):
-            self._anew = False
+        self._anew = False
+        if last is None:
             return ""
-        if before is not None and before is not last and before.odom is not None \
-                and _reachable(before, frame):
+        other = before if before is not None and before is not last else None
+        if abs(frame.stamp - last.stamp) > MAX_GAP:
+            if other is not None and abs(frame.stamp - other.stamp) <= MAX_GAP:
+                self._anew = True  # a pause: the scans go on together from the one before
+                return ""
+            return (f"stamp {frame.stamp:.6g} s lies {abs(frame.stamp - last.stamp):.3g} s "
+                    f"from the scan before (more than {MAX_GAP:g} s)")
+        if frame.odom is None or last.odom is None or _reachable(last, frame):
+            return ""
+        if other is not None and other.odom is not None and _reachable(other, frame):
             self._anew = True  # the odometry started again where the scan before was
             return ""
         dist = math.hypot(*(frame.odom[:2] - last.odom[:2]))

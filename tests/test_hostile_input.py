@@ -94,12 +94,13 @@ def test_a_line_longer_than_any_record_ends_the_reading_with_what_came_before(tm
 def test_impossible_stamps_and_odometry_are_skipped_as_bad_lines(tmp_path):
     lines = _lines()
     scans = _flaser(lines)
-    spike, far, reset = scans[3], scans[5], scans[8:]
+    spike, far, reset = scans[3], scans[5], scans[12:]
     lines[spike] = _odometry_set(lines[spike], "1e308", "0", "0")
     lines[far] = _odometry_set(lines[far], "1.2", "507216", "0.3")
-    parts = lines[scans[6]].split()
-    parts[-3] = "9760527911594970.0"  # a stamp 300 million years on
-    lines[scans[6]] = " ".join(parts)
+    for k, stamp in ((6, "9760527911594970.0"), (7, "1000.0")):  # 300 million years on;
+        parts = lines[scans[k]].split()  # 31 years back
+        parts[-3] = stamp
+        lines[scans[k]] = " ".join(parts)
     for i in reset:  # the wheels' count starting again 3 km off: kept, its increment unknown
         p = lines[i].split()
         n = int(p[1])
@@ -111,8 +112,8 @@ def test_impossible_stamps_and_odometry_are_skipped_as_bad_lines(tmp_path):
     frames = list(log)
     said = " ".join(what for _, what in log.problems)
     assert "beyond any robot's" in said and "faster than 50 m/s" in said
-    assert "past the year 2100" in said
-    assert len(frames) == len(scans) - 4  # the three above and the first of the restart
+    assert "past the year 2100" in said and "from the scan before" in said
+    assert len(frames) == len(scans) - 5  # the four above and the first of the restart
     assert frames[-len(reset) + 1].odom is None  # the restart: no increment across it
     stamps = np.array([f.stamp for f in frames])
     assert stamps.max() - stamps.min() < 1e4

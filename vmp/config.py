@@ -100,21 +100,20 @@ class MappingConfig:
 # are free of, lengths from a centimetre to a building, angles from a tenth of a degree to a
 # turn, shares from a hundredth. A value outside is refused on load, naming the key, the range
 # and the unit; every number field has one (tests/test_config.py checks).
-_DEG = math.radians(0.1)
 LIMITS: dict[str, tuple[float, float, str]] = {
     "motion.trans_per_m": (1e-3, 10.0, "m per m driven"),
     "motion.rot_per_m": (1e-4, math.pi, "rad per m driven"),
     "motion.rot_per_rad": (1e-3, 10.0, "rad per rad turned"),
     "scan_odometry.keyframe_distance": (0.01, 100.0, "m"),
-    "scan_odometry.keyframe_turn": (_DEG, math.pi, "rad"),
+    "scan_odometry.keyframe_turn": (math.radians(0.1), math.pi, "rad"),
     "registration.max_rms": (1e-3, 10.0, "m"),
     "registration.min_inliers": (0.01, 1.0, "share of the points"),
     "milestones.length": (8, 4096, "signature values"),
     "milestones.clamp_range": (0.1, 1000.0, "m"),
     "milestones.keep": (0.01, 1.0, "share of the coefficients"),
     "milestones.record_distance": (0.01, 1000.0, "m"),
-    "milestones.record_turn": (_DEG, 2 * math.pi, "rad"),
-    "milestones.max_heading": (_DEG, math.pi, "rad"),
+    "milestones.record_turn": (math.radians(0.1), 2 * math.pi, "rad"),
+    "milestones.max_heading": (math.radians(0.1), math.pi, "rad"),
     "milestones.recognition_radius": (0.01, 1000.0, "m"),
     "matching.candidates": (0, 100, "milestones"),
     "matching.max_ratio": (0.01, 1.0, "score ratio"),
