@@ -8,7 +8,7 @@ truncation, flipped, inserted or deleted bytes, a span repeated, lines deleted, 
 swapped, a number replaced by an extreme one (nan, inf, 1e308, -1, 0, huge integers, words),
 bytes that are not UTF-8, and for compressed containers the same done to the packed bytes or
 to the text inside. A third of the text cases are aimed at a class of hostile input: a line of
-5 MB, numbers replaced by physically impossible finite ones (a stamp 300 million years on, a
+9 MB, numbers replaced by physically impossible finite ones (a stamp 300 million years on, a
 position of 500 km), scans cut to 0, 1 or 2 beams or without a return, YAML nested thousands
 deep or with a number of thousands of digits; one case in fifty hands the parser a FIFO or a
 symlink to a device instead of a file; half the map file's header edits keep the JSON sound
@@ -464,7 +464,8 @@ def _npz_mutation(data: bytes, rng: np.random.Generator) -> bytes:
     except (ValueError, UnicodeDecodeError):
         header = {}
     if isinstance(header, dict) and "checksum" in header:
-        with_header = header if header.get("version", 0) >= 3 else None
+        version = header.get("version")
+        with_header = header if isinstance(version, int) and version >= 3 else None
         header["checksum"] = checksum({k: v for k, v in arrays.items() if k != "header"},
                                       with_header)
         arrays["header"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
@@ -497,10 +498,11 @@ def _edit_field(node: object, rng: np.random.Generator) -> None:
 
 
 def _huge_line(data: bytes, rng: np.random.Generator) -> bytes:
-    """A line longer than any record (5 MB: what one line of a damaged file may be)."""
+    """A line longer than any record or configuration (9 MB: what one line of a damaged
+    file may be)."""
     lines = data.split(b"\n")
     at = int(rng.integers(len(lines) + 1))
-    junk = bytes([int(rng.integers(33, 127))]) * (5 << 20)
+    junk = bytes([int(rng.integers(33, 127))]) * (9 << 20)
     return b"\n".join(lines[:at] + [junk] + lines[at:])
 
 

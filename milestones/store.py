@@ -75,6 +75,8 @@ def save_milestones(path: str | os.PathLike[str], manager: MilestoneManager) -> 
 def load_milestones(path: str | os.PathLike[str]) -> MilestoneManager:
     """Read a file written by :func:`save_milestones`; any problem raises :class:`StoreError`."""
     path = Path(path)
+    if path.exists() and not path.is_file():  # a FIFO would block the read, a device not end
+        raise StoreError(f"{path}: not a regular file")
     try:
         data = np.load(path, allow_pickle=False)
         if not isinstance(data, np.lib.npyio.NpzFile):
@@ -123,6 +125,10 @@ def load_milestones(path: str | os.PathLike[str]) -> MilestoneManager:
             np.diff(ids) <= 0))):
         raise StoreError(f"{path}: corrupt: poses are not (x, y, theta) rows or ids are not "
                          "increasing")
+    if not isinstance(header.get("config"), dict) or not isinstance(header.get("geometry"),
+                                                                     dict | None):
+        raise StoreError(f"{path}: corrupt: its configuration or beam geometry is not a "
+                         "mapping")
     try:
         state = dict(contents, config=header["config"], geometry=header["geometry"],
                      next_id=header["next_id"])

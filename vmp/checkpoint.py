@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from vmp.errors import InputError
-from vmp.fileio import atomic_write
+from vmp.fileio import atomic_write, not_regular
 from vmp.state import StateError, decode, encode
 from vmp.types import ScanFrame
 
@@ -95,6 +95,8 @@ def load_checkpoint(path: Path, keep: dict[str, object]) -> tuple[dict[str, Any]
                                                                   str]:
     """``(state, frames, last fingerprint, label)`` of a checkpoint; a damaged or foreign
     file raises :class:`InputError`."""
+    if path.exists() and not path.is_file():  # a FIFO would block the read, a device not end
+        raise InputError(f"{path}: {not_regular(path)}, not a checkpoint")
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}

@@ -24,7 +24,7 @@ import yaml
 from numpy.typing import NDArray
 
 from vmp.errors import InputError
-from vmp.fileio import atomic_write
+from vmp.fileio import atomic_write, not_regular, read_yaml
 from vmp.raster_kernel import add_spans
 from vmp.types import FloatArray
 
@@ -136,8 +136,10 @@ def read_ros_map(yaml_path: str | Path) -> Grid:
     """Read a map_server map (YAML + P5 PGM) back into a :class:`Grid`."""
     yaml_path = Path(yaml_path)
     try:
-        meta = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
+        meta = read_yaml(yaml_path)
         image = yaml_path.parent / str(meta["image"])
+        if image.exists() and not image.is_file():
+            raise InputError(f"{image}: {not_regular(image)}, not a PGM image")
         data = image.read_bytes()
         resolution = float(meta["resolution"])
         origin = (float(meta["origin"][0]), float(meta["origin"][1]))

@@ -15,8 +15,9 @@ import yaml
 
 from vmp.errors import InputError
 
-# The largest YAML document read (bytes): a configuration or scenario is a few kB.
-MAX_YAML = 16 << 20
+# The largest YAML document read (bytes): a configuration or scenario is a few kB, and one of
+# the most wall segments a scenario may hold (100,000) about 4 MB.
+MAX_YAML = 8 << 20
 
 # The process umask, read once at import (reading it means setting it, which is not thread-safe).
 _UMASK = os.umask(0o022)

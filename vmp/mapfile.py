@@ -24,7 +24,7 @@ import numpy as np
 from milestones.manager import MilestoneManager
 from vmp.config import MappingConfig, config_from_dict
 from vmp.errors import InputError
-from vmp.fileio import atomic_write
+from vmp.fileio import atomic_write, not_regular
 from vmp.pose_graph import PoseGraph
 from vmp.types import ScanFrame, check_beams
 from vmp.vector_map import BeamGeometry, VectorMap
@@ -231,6 +231,8 @@ def load_map(path: str | os.PathLike[str]) -> MapData:
     """Read a map file; a missing, corrupt, damaged or foreign file raises :class:`InputError`
     with one line."""
     path = Path(path)
+    if path.exists() and not path.is_file():  # a FIFO would block the read, a device not end
+        raise InputError(f"{path}: {not_regular(path)}, not a map file")
     try:
         data = np.load(path, allow_pickle=False)
         if not isinstance(data, np.lib.npyio.NpzFile):
