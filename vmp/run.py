@@ -59,8 +59,9 @@ def stop_on_signals(on_signal: Callable[[str], None]) -> Iterator[None]:
         if len(seen) == 1:
             on_signal(seen[0])
         elif len(seen) == 2:
-            os.write(2, b"vmp: stopping after this scan and writing what was mapped; it is "
-                        b"kept (SIGKILL would lose what is not yet written)\n")
+            os.write(2, f"vmp: {seen[-1]} again: what was mapped is being finished and "
+                        "written, and is kept (SIGKILL would lose what is not yet "
+                        "written)\n".encode())
 
     previous = {s: signal.signal(s, handler) for s in SIGNALS}
     try:

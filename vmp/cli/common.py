@@ -119,7 +119,12 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
     from vmp.run import stop_on_signals
 
     late: list[str] = []
-    with stop_on_signals(late.append):
+
+    def later(name: str) -> None:
+        late.append(name)
+        print(f"vmp: {name}: writing the results first; they are kept", file=sys.stderr)
+
+    with stop_on_signals(later):
         metrics = write()
         mark_complete(out)
         link_latest(out, link)
@@ -135,9 +140,7 @@ def finish(result, write: Callable[[], dict], out: Path, args: argparse.Namespac
     elif result.interrupted:
         print(f"vmp: interrupted by {result.interrupted} after {result.scans} scans; "
               f"results in {out}", file=sys.stderr)
-    if late and not result.interrupted:
-        print(f"vmp: {late[0]} while the results were written: they were written in full, "
-              f"in {out}", file=sys.stderr)
+
     if view is not None:
         if args.rerun == "serve" and not result.interrupted:
             view.hold()
