@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.textlog import Jumps, LineLog, implausible
+from drivers.textlog import Jumps, LineLog
 from vmp.errors import InputError
 from vmp.types import FloatArray, ScanFrame, interpolate_pose
 
@@ -328,7 +328,7 @@ class RosBagLog(LineLog):
         self._closed = False
         odom_t, odom_p = self._odometry()
         last = -math.inf
-        odometry = Jumps()
+        jumps = Jumps()
         for k, _, t_ns, m in self.bag.messages({self.chosen_scan}):
             try:
                 if isinstance(m, Exception):
@@ -346,11 +346,10 @@ class RosBagLog(LineLog):
             except (ValueError, AttributeError, TypeError, OverflowError) as exc:
                 self._bad(k, f"bad LaserScan message: {exc}")
                 continue
-            problem = implausible(frame) or odometry.jump(frame)
-            if problem:
+            frame, problem = jumps.admit(frame)
+            if frame is None:
                 self._bad(k, f"{problem}; scan skipped")
                 continue
-            frame = odometry.checked(frame)
             if frame.stamp < last:
                 self._bad(k, "stamp runs backwards; scan kept", skip=False)
             last = max(last, frame.stamp)

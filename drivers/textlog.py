@@ -25,7 +25,6 @@ __all__ = [
     "Jumps",
     "LineLog",
     "LineTooLong",
-    "implausible",
     "lines_of",
     "open_text",
 ]
@@ -278,13 +277,12 @@ class LineLog:
             raise InputError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
         with f:
             last_stamp = -float("inf")
-            odometry = Jumps()
+            jumps = Jumps()
             for frame in self._frames(self._lines(f)):
-                problem = implausible(frame) or odometry.jump(frame)
-                if problem:
+                frame, problem = jumps.admit(frame)
+                if frame is None:
                     self._bad(self._line, f"{problem}; scan skipped")
                     continue
-                frame = odometry.checked(frame)
                 if frame.stamp < last_stamp:
                     self._bad(self._line, f"stamp {frame.stamp:.6f} runs backwards (latest "
                                           f"before {last_stamp:.6f}); scan kept", skip=False)
@@ -298,7 +296,7 @@ class LineLog:
         raise NotImplementedError
 
 
-def implausible(frame: ScanFrame) -> str:
+def _implausible(frame: ScanFrame) -> str:
     """What no recording holds in ``frame`` ("" when nothing): a stamp beyond
     :data:`MAX_STAMP`, an odometry pose beyond any building or a heading of
     :data:`MAX_HEADING` radians."""
@@ -347,8 +345,14 @@ class Jumps:
         return (f"odometry jumps {dist:.6g} m in {abs(frame.stamp - last.stamp):.3g} s "
                 f"(faster than {MAX_SPEED:g} m/s)")
 
-    def checked(self, frame: ScanFrame) -> ScanFrame:
-        """``frame`` as kept: without odometry where the wheels' count started anew."""
+    def admit(self, frame: ScanFrame) -> tuple[ScanFrame | None, str]:
+        """``frame`` as kept (without odometry where the wheels' count started anew), or
+        None and why it is skipped: a value no recording holds (:func:`_implausible`) or a
+        jump (:meth:`jump`)."""
+        problem = _implausible(frame) or self.jump(frame)
+        return (None, problem) if problem else (self._checked(frame), "")
+
+    def _checked(self, frame: ScanFrame) -> ScanFrame:
         self._kept = frame
         if self._anew:
             self._anew = False
