@@ -130,6 +130,21 @@ def test_a_second_session_resumed_from_its_checkpoint_ends_as_the_uninterrupted_
         whole.pipeline.stats["scans before localized in the saved map"]
 
 
+def _mapping_office(out: Path) -> subprocess.Popen:
+    """``vmp map office`` of 2,000 scans as its own process, once its results folder exists."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "vmp", "map", "office", "--scans", "2000",
+                             "--out", str(out), "-q"], env=env, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        _wait_for(out, "*/INCOMPLETE", proc, 120)
+    except BaseException:
+        proc.kill()
+        proc.wait()
+        raise
+    return proc
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(("signum", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_signal_at_a_random_moment_leaves_a_complete_folder_with_a_loadable_map(
@@ -141,12 +156,8 @@ def test_a_signal_at_a_random_moment_leaves_a_complete_folder_with_a_loadable_ma
     # After the folder appears the scenario is built and the compiled ICP loaded (about
     # 0.5 s, more on a loaded machine) before the first scan is mapped.
     delay = float(np.random.default_rng(int(signum)).uniform(1.2, 3.0))
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "vmp", "map", "office", "--scans", "2000",
-                             "--out", str(tmp_path), "-q"], env=env, stderr=subprocess.PIPE,
-                            text=True)
+    proc = _mapping_office(tmp_path)
     try:
-        _wait_for(tmp_path, "*/INCOMPLETE", proc, 120)
         time.sleep(delay)
         assert proc.poll() is None, "the run ended before the signal: give it more scans"
         proc.send_signal(signum)
@@ -191,12 +202,8 @@ def test_ctrl_c_pressed_three_times_keeps_the_results(tmp_path):
     loads."""
     from vmp.mapfile import load_map
 
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "vmp", "map", "office", "--scans", "2000",
-                             "--out", str(tmp_path), "-q"], env=env, stderr=subprocess.PIPE,
-                            text=True)
+    proc = _mapping_office(tmp_path)
     try:
-        _wait_for(tmp_path, "*/INCOMPLETE", proc, 120)
         time.sleep(1.5)
         assert proc.poll() is None, "the run ended before the signal: give it more scans"
         for _ in range(3):
