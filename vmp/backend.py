@@ -110,11 +110,9 @@ class BackEnd:
         # Per anchor, the milestones it closed a loop to without a handover.
         self._closed: dict[int, set[int]] = {}
         self._neighbours: dict[int, set[int]] = {}  # milestone -> the ones edges join it to
-        # A loop the search found, waiting for a second to agree: (anchor, milestone, z,
-        # covariance, correction of the map frame).
-        self._pending: tuple[int, int, FloatArray, FloatArray, FloatArray] | None = None
-        # Every loop the search found lately: (anchor, correction of the map frame).
-        self._finds: list[tuple[int, FloatArray]] = []
+        # The loops the search found lately, waiting for others to agree, oldest first:
+        # (anchor, milestone, z, covariance, correction of the map frame).
+        self._finds: list[tuple[int, int, FloatArray, FloatArray, FloatArray]] = []
         # The path edge that recorded each milestone (see drift_along_path), and how many of
         # the graph's edges were looked at for them.
         self._record: dict[int, tuple[int, FloatArray, FloatArray]] | None = {}
@@ -368,31 +366,30 @@ class BackEnd:
         loop.
         """
         correction = compose(m.z, inverse(pose))  # what the find does to the map frame
-        self._finds = [f for f in self._finds if self.anchor - f[0] <= CONFIRM_WITHIN]
-        self._finds.append((self.anchor, correction))
-        if self._pending is not None and self._pending[0] == self.anchor:
+        finds = [f for f in self._finds if self.anchor - f[0] <= CONFIRM_WITHIN]
+        self._finds = [*finds, (self.anchor, m.milestone, z, cov, correction)]
+        if any(f[0] == self.anchor for f in finds):
             # Another find of the same search: the same scan, in a submap that shares most
             # of its segments with the first one's (a milestone's neighbours are in both), is
             # no second look. On Radish acapulco two such finds 6.5 m off, scoring 0.57, made
             # a loop.
             self.stats["loop finds awaiting confirmation"] += 1
             return False
-        pending, self._pending = self._pending, (self.anchor, m.milestone, z, cov, correction)
-        if pending is None or self.anchor - pending[0] > CONFIRM_WITHIN:
-            self.stats["loop finds awaiting confirmation"] += 1
-            return False
-        if not corrections_agree(pending[4], correction, pose):
+        # The first find of the last search before that found any.
+        pending = next((f for f in finds if f[0] == finds[-1][0]), None) if finds else None
+        if pending is None or not corrections_agree(pending[4], correction, pose):
             self.stats["loop finds awaiting confirmation"] += 1
             return False
         if self._agreed_elsewhere(correction, pose):
             self.stats["loop finds awaiting confirmation"] += 1
             self.stats["loop finds as well confirmed elsewhere"] += 1
             return False
-        if pending[0] != self.anchor or pending[1] != m.milestone:
-            self._add_edge(*pending[:4], "loop")
-            self.stats["loop edges"] += 1
-            self.stats["loop edges in place"] += 1
-        self._pending = None
+        self._add_edge(*pending[:4], "loop")
+        self.stats["loop edges"] += 1
+        self.stats["loop edges in place"] += 1
+        # The graph will move the map frame by this correction: the finds before it
+        # corrected another frame.
+        self._finds = []
         return True
 
     def _agreed_elsewhere(self, correction: FloatArray, pose: FloatArray) -> bool:
@@ -401,8 +398,8 @@ class BackEnd:
         to is a guess. (On ACES with the wheels' heading drifting 2 deg every 10 m, the
         searches at two milestones in a row found the right place, and at the next two a
         stretch of corridor 7.5 m along, each pair agreeing.)"""
-        others = [f for f in self._finds if not corrections_agree(f[1], correction, pose)]
-        return any(a[0] != b[0] and corrections_agree(a[1], b[1], pose)
+        others = [f for f in self._finds if not corrections_agree(f[4], correction, pose)]
+        return any(a[0] != b[0] and corrections_agree(a[4], b[4], pose)
                    for k, a in enumerate(others) for b in others[k + 1:])
 
     def tie(self, new: int, old: int, reg: Registration) -> Edge:
